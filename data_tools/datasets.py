@@ -1,0 +1,56 @@
+"""Open any supported input with automatic format detection."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from data_tools.errors import DataError
+from prc_slam.scan import Scan
+
+FORMATS = ("kitti", "ouster")
+
+
+class Dataset(Protocol):
+    """A sequence of Scans with optional ground-truth poses and frame times."""
+
+    format: str
+    name: str
+    poses: np.ndarray | None
+    times: np.ndarray | None
+
+    def __len__(self) -> int: ...
+    def __getitem__(self, i: int) -> Scan: ...
+    def __iter__(self) -> Iterator[Scan]: ...
+
+
+def detect_format(path: str | Path) -> str:
+    """Guess the input format of ``path`` (raises :class:`DataError` when unknown)."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: no such file or directory")
+    if path.is_dir():
+        if (path / "velodyne").is_dir():
+            return "kitti"
+        if any(path.glob("*.npz")):
+            return "ouster"
+    elif path.suffix == ".npz":
+        return "ouster"
+    raise DataError(f"{path}: unknown input format (expected a KITTI directory with velodyne/, or Ouster .npz)")
+
+
+def open_dataset(path: str | Path, fmt: str | None = None, **options: object) -> Dataset:
+    """Open ``path`` as a dataset; ``fmt`` overrides the detected format."""
+    fmt = fmt or detect_format(path)
+    if fmt == "kitti":
+        from data_tools.kitti import KittiSequence
+
+        return KittiSequence(path)
+    if fmt == "ouster":
+        from data_tools.ouster import OusterSequence
+
+        return OusterSequence(path, destaggered=bool(options.get("destaggered", False)))
+    raise DataError(f"{path}: unsupported format {fmt!r}; choose from {FORMATS}")

@@ -1,0 +1,127 @@
+"""Ouster sweeps decoded to organised ``*.npz`` arrays (see ``../shared/data/README.md``).
+
+Each file holds one sweep in measurement order: ``range_mm`` (beams x measurement ids,
+0 = no return), ``reflectivity``, ``column_ts_ns``, ``column_valid``, ``beam_altitude_deg``,
+``beam_azimuth_deg``, ``pixel_shift_by_row`` and optionally ``xyz_lidar_m``.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from data_tools.errors import DataError
+from prc_slam.scan import Scan, SpinningSensor
+
+REQUIRED = ("range_mm", "column_ts_ns", "beam_altitude_deg", "beam_azimuth_deg", "pixel_shift_by_row")
+
+
+def destagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """Shift each row ``r`` of a measurement-order image right by ``shift[r]`` columns
+    (Ouster's destaggering), so that a column holds one azimuth for all beams."""
+    cols = image.shape[1]
+    idx = (np.arange(cols)[None, :] - np.asarray(shift)[:, None]) % cols
+    return np.take_along_axis(image, idx.reshape(idx.shape + (1,) * (image.ndim - 2)), axis=1)
+
+
+def read_ouster_npz(path: str | Path, *, destaggered: bool = False, name: str | None = None) -> Scan:
+    """Read one decoded Ouster sweep as a Scan (rows = beams, columns = measurement ids).
+
+    Parameters
+    ----------
+    path : path of the ``.npz``
+    destaggered : bool
+        Shift rows by ``pixel_shift_by_row`` so columns are azimuths; by default the image is
+        kept in measurement (emission) order, the raw stream PRC is defined on.
+    """
+    path = Path(path)
+    try:
+        with np.load(path) as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise DataError(f"{path}: cannot read Ouster npz: {exc}") from exc
+    missing = [k for k in REQUIRED if k not in data]
+    if missing:
+        raise DataError(f"{path}: missing arrays {missing}")
+    rng = data["range_mm"]
+    if rng.ndim != 2:
+        raise DataError(f"{path}: range_mm must be 2-D, got shape {rng.shape}")
+    rows, cols = rng.shape
+    for key, shape in (
+        ("beam_altitude_deg", (rows,)),
+        ("beam_azimuth_deg", (rows,)),
+        ("pixel_shift_by_row", (rows,)),
+        ("column_ts_ns", (cols,)),
+    ):
+        if data[key].shape != shape:
+            raise DataError(f"{path}: {key} has shape {data[key].shape}, expected {shape}")
+    ranges = rng.astype(np.float64) / 1000.0
+    if not np.isfinite(ranges).all():
+        raise DataError(f"{path}: non-finite ranges")
+    valid_cols = data.get("column_valid", np.ones(cols, bool)).astype(bool)
+    ranges[:, ~valid_cols] = 0.0
+    ts = data["column_ts_ns"].astype(np.float64) * 1e-9
+    if (np.diff(ts[valid_cols]) < 0).any():
+        raise DataError(f"{path}: column timestamps are not monotonic")
+    shift = data["pixel_shift_by_row"].astype(np.int64)
+    intensity = data.get("reflectivity", np.zeros((rows, cols))).astype(np.float32)
+    xyz = data.get("xyz_lidar_m")
+    if xyz is not None and xyz.shape != (rows, cols, 3):
+        raise DataError(f"{path}: xyz_lidar_m has shape {xyz.shape}, expected {(rows, cols, 3)}")
+    timestamps = np.broadcast_to(ts[None, :], (rows, cols)).copy()
+    if destaggered:
+        ranges = destagger(ranges, shift)
+        intensity = destagger(intensity, shift)
+        timestamps = destagger(timestamps, shift)
+        xyz = None if xyz is None else destagger(xyz, shift)
+    # Ouster: encoder angle 2*pi*(1 - m/W) for measurement id m, beam azimuth offset subtracted.
+    sensor = SpinningSensor.create(
+        np.radians(data["beam_altitude_deg"]),
+        cols,
+        beam_azimuth=-np.radians(data["beam_azimuth_deg"]),
+        column_shift=-shift.astype(float) if destaggered else None,
+        azimuth0=2.0 * np.pi + np.pi / cols,
+        direction=-1,
+        sweep_period=float(ts[valid_cols][-1] - ts[valid_cols][0]) * cols / max(int(valid_cols.sum()) - 1, 1)
+        if valid_cols.sum() > 1
+        else 0.1,
+    )
+    return Scan(
+        ranges=ranges.astype(np.float32),
+        sensor=sensor,
+        name=name or path.stem,
+        source=str(path),
+        intensity=intensity,
+        timestamps=timestamps,
+        xyz=None if xyz is None else xyz.astype(np.float32),
+        meta={"destaggered": destaggered, "invalid_columns": int((~valid_cols).sum())},
+    )
+
+
+class OusterSequence:
+    """One or more decoded Ouster sweeps (a ``.npz`` file or a directory of them, sorted)."""
+
+    format = "ouster"
+
+    def __init__(self, path: str | Path, *, destaggered: bool = False) -> None:
+        path = Path(path)
+        self.files = sorted(path.glob("*.npz")) if path.is_dir() else [path]
+        if not self.files:
+            raise DataError(f"{path}: no .npz files")
+        self.root = path
+        self.name = path.stem
+        self.destaggered = destaggered
+        self.poses = None
+        self.times = None
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    def __getitem__(self, i: int) -> Scan:
+        return read_ouster_npz(self.files[i], destaggered=self.destaggered, name=f"{i:06d}")

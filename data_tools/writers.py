@@ -1,0 +1,64 @@
+"""Writers: per-frame label files and classified LAS 1.4 clouds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from data_tools.errors import DataError
+from prc_slam import labels as L
+
+
+def write_label_file(path: str | Path, codes: np.ndarray) -> None:
+    """Write one ``.label`` file: ``uint32`` per point, our code in the lower 16 bits."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    L.to_label_file(codes).tofile(path)
+
+
+def write_las(
+    path: str | Path,
+    xyz: np.ndarray,
+    classification: np.ndarray,
+    *,
+    intensity: np.ndarray | None = None,
+    point_source_id: np.ndarray | None = None,
+    gps_time: np.ndarray | None = None,
+) -> None:
+    """Write a LAS 1.4 file (point format 6) with our codes in ``classification``.
+
+    Parameters
+    ----------
+    xyz : float (N, 3)
+    classification : uint8 (N,)
+    intensity : optional (N,), scaled into uint16 when given as floats in [0, 1] or [0, 255]
+    point_source_id : optional (N,), e.g. the frame index
+    gps_time : optional (N,), seconds
+    """
+    path = Path(path)
+    xyz = np.asarray(xyz, dtype=np.float64)
+    classification = np.asarray(classification)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise DataError(f"{path}: xyz must be (N, 3), got {xyz.shape}")
+    if classification.shape != (len(xyz),):
+        raise DataError(f"{path}: {classification.size} classes for {len(xyz)} points")
+    if not np.isfinite(xyz).all():
+        raise DataError(f"{path}: refusing to write non-finite coordinates")
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([0.001, 0.001, 0.001])
+    header.offsets = xyz.min(axis=0) if len(xyz) else np.zeros(3)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    las.classification = classification.astype(np.uint8)
+    if intensity is not None:
+        inten = np.asarray(intensity, dtype=np.float64)
+        scale = 65535.0 / max(float(inten.max()), 1.0) if len(inten) else 1.0
+        las.intensity = np.clip(inten * scale, 0, 65535).astype(np.uint16)
+    if point_source_id is not None:
+        las.point_source_id = np.asarray(point_source_id, dtype=np.uint16)
+    if gps_time is not None:
+        las.gps_time = np.asarray(gps_time, dtype=np.float64)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    las.write(path)

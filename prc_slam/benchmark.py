@@ -1,0 +1,80 @@
+"""``prc-slam bench``: throughput of each stage on its reference input, single process.
+
+Timings are medians of repeated runs; each section also times a fixed numpy yardstick in the
+same process so figures from noisy machines can be compared as ratios.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prc_slam.config import PRCConfig
+from prc_slam.prc import prc_block
+
+PAPER_PRC_POINTS_PER_S = 0.13e6  # Lehtola et al. 2019, Sec. IV-D (urban)
+
+
+def median_seconds(fn: Callable[[], object], repeat: int, warmup: int = 2) -> float:
+    """Median wall time of ``fn`` over ``repeat`` runs after ``warmup`` runs."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def yardstick_seconds(n: int = 213_246, repeat: int = 15) -> float:
+    """Time of sorting ``n`` random float32 values: a machine-speed reference."""
+    values = np.random.default_rng(0).random(n, dtype=np.float32)
+    return median_seconds(lambda: np.sort(values), repeat)
+
+
+def bench_prc(kitti_dir: Path | None = None, repeat: int = 30) -> dict[str, Any]:
+    """PRC (support through classification) on the 99 x 2154 profiler block, and on KITTI frames.
+
+    The profiler block is the synthetic street of :mod:`data_tools.synthetic`; KITTI frames
+    are read from ``kitti_dir`` when it exists (the adaptive multi-beam setting is timed too).
+    """
+    from data_tools.synthetic import profiler_block
+
+    cfg = PRCConfig.preset("urban")
+    block = profiler_block(99, 2154, seed=0)
+    sec = median_seconds(lambda: prc_block(block.ranges, cfg), repeat)
+    yard = yardstick_seconds(block.ranges.size)
+    out: dict[str, Any] = {
+        "points_per_s": block.ranges.size / sec,
+        "block_shape": list(block.ranges.shape),
+        "ms_per_block": sec * 1e3,
+        "speedup_vs_paper": block.ranges.size / sec / PAPER_PRC_POINTS_PER_S,
+        "yardstick_sort_ms": yard * 1e3,
+        "ratio_to_yardstick": sec / yard,
+    }
+    if kitti_dir is not None and (kitti_dir / "velodyne").is_dir():
+        from data_tools.kitti import KittiSequence
+
+        seq = KittiSequence(kitti_dir)
+        scans = [seq[i] for i in range(min(3, len(seq)))]
+        for name, config in (("kitti", cfg), ("kitti_multibeam", PRCConfig.preset("multibeam"))):
+            secs = [
+                median_seconds(lambda s=s, c=config: prc_block(s.ranges, c, sensor=s.sensor, wrap=True), repeat // 3)
+                for s in scans
+            ]
+            slots = scans[0].ranges.size
+            points = float(np.mean([s.n_points for s in scans]))
+            out[f"{name}_ms_per_frame"] = float(np.mean(secs)) * 1e3
+            out[f"{name}_points_per_s"] = points / float(np.mean(secs))
+            out[f"{name}_slots_per_s"] = slots / float(np.mean(secs))
+    return out
+
+
+def run_bench(kitti_dir: Path | None = None) -> dict[str, Any]:
+    """All sections implemented so far."""
+    return {"prc": bench_prc(kitti_dir)}

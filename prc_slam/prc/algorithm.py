@@ -1,0 +1,359 @@
+"""Preregistration classification, Algorithm 1 of Lehtola et al., IEEE TGRS 2019 (paper 000).
+
+Steps (Sec. II):
+
+1. buffer ``k`` scan lines of ``M`` ranges into a block ``B_b`` (Sec. II-A);
+2. support ``S_b = B_b \\ F_b`` by eqs. (4)-(8) (Sec. II-B);
+3. ``H_b``: background extended by eq. (9) (Sec. II-C), 4-connected components, hole filling
+   from the 8-neighbourhood, labels continued from ``R_{b-1}`` with the block boundary vote
+   (Sec. II-D);
+4. ``V_b``: segments smaller than ``A`` dilated ``gamma`` times and re-segmented (eq. 11,
+   Sec. II-E);
+5. ``R_b`` combined from ``H_b`` and ``V_b``;
+6. classification (Sec. II-F): urban noise / ground / building / vegetation, forest noise /
+   ground (eq. 12) / trunk / other vegetation.
+
+All of it runs on the range image alone; the sensor model only enters through the optional
+adaptive thresholds (our addition, see :func:`support_thresholds`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from prc_slam import labels as L
+from prc_slam.config import PRCConfig
+from prc_slam.prc import kernels
+from prc_slam.scan import Scan, SensorModel
+
+#: |N_adj-slice| of eq. (7): three slots in the previous and three in the next scan line.
+N_ADJ = 6
+
+
+@dataclass
+class BlockResult:
+    """PRC output for one block.
+
+    Attributes
+    ----------
+    labels : uint8 (rows, cols)
+        Class codes of :mod:`prc_slam.labels`.
+    segments : int32 (rows, cols)
+        Final segmentation ``R_b`` with stream-wide segment ids (0: noise or no return).
+    supported : bool (rows, cols)
+        ``S_b`` of eq. (2).
+    smooth : bool (rows, cols)
+        Points of ``H_b \\ V_b`` (segments of at least ``A`` pixels).
+    row0 : int
+        Index of the block's first row in the stream.
+    """
+
+    labels: np.ndarray
+    segments: np.ndarray
+    supported: np.ndarray
+    smooth: np.ndarray
+    row0: int = 0
+
+
+@dataclass
+class PRCState:
+    """What PRC carries from block ``b-1`` to block ``b`` (continuous streams only)."""
+
+    next_label: int = 1
+    last_row: np.ndarray | None = None
+    smooth_area: dict[int, int] = field(default_factory=dict)
+
+
+def support_thresholds(
+    ranges: np.ndarray, config: PRCConfig, sensor: SensorModel | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-slot thresholds ``(xi_s, xi_p)``.
+
+    In the paper's mode both are constants. With ``config.adaptive`` (beyond the paper),
+    each is raised to the range difference that a surface seen at the incidence angle
+    ``beta = adaptive_incidence_deg`` produces between neighbouring slots:
+    ``xi(i) = max(xi, tan(beta) * s(i))`` where ``s(i)`` is the slot spacing at normal
+    incidence from :meth:`SensorModel.neighbour_spacing` (range times angular step for a
+    spinning sensor). Fixed thresholds otherwise cut distant ground on multi-beam sensors,
+    where adjacent rings hit the ground metres apart.
+    """
+    shape = ranges.shape
+    xi_s = np.full(shape, config.xi_s, dtype=np.float32)
+    xi_p = np.full(shape, config.xi_p, dtype=np.float32)
+    if config.adaptive:
+        if sensor is None:
+            raise ValueError("adaptive thresholds need a sensor model")
+        s_in, s_adj = sensor.neighbour_spacing(ranges)
+        factor = np.float32(np.tan(np.radians(config.adaptive_incidence_deg)))
+        np.maximum(xi_s, factor * s_adj, out=xi_s)
+        np.maximum(xi_p, factor * s_in, out=xi_p)
+    return xi_s, xi_p
+
+
+def supported_mask(ranges: np.ndarray, xi_s: np.ndarray, xi_p: np.ndarray, config: PRCConfig, wrap: bool) -> np.ndarray:
+    """``S_b`` of eq. (2): returns that satisfy the support condition (4).
+
+    ``C_in >= rho_c |N_in-slice|`` and ``C_adj >= rho_c |N_adj-slice|``; with the paper's
+    ``rho_c = 1/3`` that is at least 3 of the 8 in-slice neighbours and 2 of the 6
+    adjacent-slice neighbours. (The paper's text quotes the two constants the other way
+    round, "= 2" and "≈ 3"; eqs. (4), (7) and (8) give 8/3 and 2, which we follow.)
+    """
+    need_in = int(np.ceil(config.rho_c * 2 * config.in_slice_half - 1e-9))
+    need_adj = int(np.ceil(config.rho_c * N_ADJ - 1e-9))
+    if not config.adaptive:
+        return kernels.supported_fixed(
+            ranges, np.float32(config.xi_s), np.float32(config.xi_p), config.in_slice_half, need_in, need_adj, wrap
+        )
+    c_adj, c_in = kernels.support_counts(ranges, xi_s, xi_p, config.in_slice_half, wrap)
+    return (ranges > 0) & (c_in >= need_in) & (c_adj >= need_adj)
+
+
+def boundary_relabel(first_row: np.ndarray, prev_row: np.ndarray, min_votes: int) -> dict[int, int]:
+    """Block boundary condition of Sec. II-D-2.
+
+    Each point of the last scan line of ``R_{b-1}`` votes for its label to be used by the
+    point in the same column of the first line of ``H_b``. A segment of ``H_b`` takes the
+    label with the most votes if it has at least ``min_votes``; only nonzero-to-nonzero
+    changes are made.
+
+    Parameters
+    ----------
+    first_row : int array (cols,)
+        Segment ids of the first line of ``H_b`` (block-local ids).
+    prev_row : int array (cols,)
+        Segment ids of the last line of ``R_{b-1}``.
+
+    Returns
+    -------
+    dict
+        Block-local segment id → inherited id.
+    """
+    m = (first_row > 0) & (prev_row > 0)
+    if not m.any():
+        return {}
+    pairs = np.stack([first_row[m].astype(np.int64), prev_row[m].astype(np.int64)], axis=1)
+    uniq, counts = np.unique(pairs, axis=0, return_counts=True)
+    keep = counts >= min_votes
+    uniq, counts = uniq[keep], counts[keep]
+    # for each segment the inherited label with most votes (ties: the smaller label)
+    order = np.lexsort((uniq[:, 1], -counts, uniq[:, 0]))
+    uniq = uniq[order]
+    first = np.ones(len(uniq), dtype=bool)
+    first[1:] = uniq[1:, 0] != uniq[:-1, 0]
+    return {int(s): int(t) for s, t in uniq[first]}
+
+
+def prc_block(
+    ranges: np.ndarray,
+    config: PRCConfig,
+    *,
+    sensor: SensorModel | None = None,
+    wrap: bool = False,
+    state: PRCState | None = None,
+    row0: int = 0,
+) -> BlockResult:
+    """Run Algorithm 1 on one ``k x M`` block.
+
+    Parameters
+    ----------
+    ranges : float32 (rows, cols)
+        Range image of the block, 0 for slots without a return. Not modified.
+    config : PRCConfig
+    sensor : SensorModel, optional
+        Needed only for ``config.adaptive``.
+    wrap : bool
+        Columns wrap around (spinning sensors).
+    state : PRCState, optional
+        Carried between consecutive blocks of a continuous stream; updated in place. Without
+        it the block stands alone.
+    row0 : int
+        Stream index of the block's first row (recorded in the result).
+    """
+    ranges = np.ascontiguousarray(ranges, dtype=np.float32)
+    rows, cols = ranges.shape
+    carry = state is not None
+    state = state if state is not None else PRCState()
+    # Step 2: support, eqs. (4)-(8).
+    xi_s, xi_p = support_thresholds(ranges, config, sensor)
+    supported = supported_mask(ranges, xi_s, xi_p, config, wrap)
+
+    # Step 3: H_b.
+    grad = kernels.gradient_background(
+        ranges, supported, config.alpha, config.d_c, config.gradient == "literal", wrap, config.gradient_axes == "both"
+    )
+    foreground = supported & ~grad
+    cc, n = kernels.connected_components(foreground, wrap)
+    h_local = kernels.fill_holes(cc, grad, wrap)
+
+    glob = np.arange(n + 1, dtype=np.int64) + (state.next_label - 1)
+    glob[0] = 0
+    state.next_label += n
+    if carry and state.last_row is not None and state.last_row.shape == (cols,):
+        for s, t in boundary_relabel(h_local[0], state.last_row, config.boundary_votes).items():
+            glob[s] = t
+
+    # Step 4: V_b from the segments smaller than A (eq. 11), sizes counted after relabelling.
+    local_size = np.bincount(h_local.ravel(), minlength=n + 1)
+    uniq, inv = np.unique(glob[1:], return_inverse=True)
+    seg_area = np.bincount(inv, weights=local_size[1:], minlength=len(uniq))
+    smooth_lut = np.zeros(n + 1, dtype=bool)
+    smooth_lut[1:] = seg_area[inv] >= config.A
+    smooth, small = kernels.split_smooth(h_local, smooth_lut)
+    dilated = kernels.dilate4(small, config.gamma, wrap) if config.gamma > 0 else small
+    v_local, nv = kernels.connected_components(dilated, wrap)
+    v_offset = state.next_label - 1
+    state.next_label += nv
+
+    # Step 5: R_b. Points of small segments, and supported points left unlabelled by hole
+    # filling that the dilation reached, take their V_b label; smooth segments keep H_b.
+    segments, nonsmooth = kernels.combine(
+        h_local, glob.astype(np.int32), smooth, small, dilated, v_local, v_offset, supported
+    )
+
+    # Step 6: classification.
+    if config.mode == "urban":
+        is_smooth = seg_area >= config.A
+        ground = _ground_segment(uniq[is_smooth], seg_area[is_smooth], state if carry else None)
+        out = kernels.class_codes(
+            ranges,
+            supported,
+            smooth,
+            nonsmooth,
+            segments,
+            ground,
+            L.BUILDING,
+            L.GROUND,
+            L.VEGETATION,
+            L.NOISE,
+            L.UNCLASSIFIED,
+        )
+    else:
+        out = kernels.class_codes(
+            ranges,
+            supported,
+            smooth,
+            nonsmooth,
+            segments,
+            0,
+            L.TRUNK,
+            L.GROUND,
+            L.VEGETATION,
+            L.NOISE,
+            L.UNCLASSIFIED,
+        )
+        out[column_density_ground(smooth, config) & supported] = L.GROUND
+
+    if carry:
+        state.last_row = segments[-1].copy()
+    return BlockResult(labels=out, segments=segments, supported=supported, smooth=smooth, row0=row0)
+
+
+def _ground_segment(ids: np.ndarray, areas: np.ndarray, state: PRCState | None) -> int:
+    """The largest smooth patch, connected over the blocks (Sec. II-F): the smooth segment
+    with the largest area accumulated over the consecutive blocks that carried its id.
+
+    Parameters
+    ----------
+    ids, areas : arrays
+        Stream-wide ids of this block's smooth segments and their areas in this block.
+    """
+    if state is not None:
+        areas = areas + np.array([state.smooth_area.get(int(u), 0) for u in ids], dtype=np.int64)
+        state.smooth_area = {int(u): int(a) for u, a in zip(ids, areas, strict=True)}
+    if len(ids) == 0:
+        return 0
+    return int(ids[np.argmax(areas)])
+
+
+def column_density_ground(smooth: np.ndarray, config: PRCConfig) -> np.ndarray:
+    """Forest ground by the column smoothness density of eq. (12).
+
+    ``rho = (1/k) sum_j [p_j in H_b \\ V_b]`` is evaluated on every ``density_stride``-th
+    column starting at column 0; a column with ``rho > density_threshold`` and the
+    ``density_stride - 1`` columns after it are declared ground.
+
+    Returns
+    -------
+    bool (rows, cols)
+        True in the ground columns.
+    """
+    rows, cols = smooth.shape
+    stride = config.density_stride
+    rho = smooth[:, ::stride].sum(axis=0) / rows
+    is_ground = np.repeat(rho > config.density_threshold, stride)[:cols]
+    return np.broadcast_to(is_ground[None, :], smooth.shape)
+
+
+class PRCStream:
+    """Streaming PRC: accepts scan lines in chunks of any size and labels complete blocks.
+
+    Lines are buffered into blocks of ``config.k`` lines (Algorithm 1, step 1); labels do not
+    depend on how the stream is chunked. Continuous sensors (profilers) carry segment ids
+    over block boundaries; for other sensors every block stands alone.
+
+    Parameters
+    ----------
+    config : PRCConfig
+    sensor : SensorModel
+        Supplies ``cols`` (= M), ``continuous_rows``, and the spacing for adaptive thresholds.
+    """
+
+    def __init__(self, config: PRCConfig, sensor: SensorModel) -> None:
+        self.config = config
+        self.sensor = sensor
+        self.wrap = (not sensor.continuous_rows) if config.wrap_columns is None else config.wrap_columns
+        self.state = PRCState()
+        self._buffer: list[np.ndarray] = []
+        self._buffered = 0
+        self._rows_done = 0
+
+    def push(self, lines: np.ndarray) -> list[BlockResult]:
+        """Add scan lines ``float32[n, M]`` (a single line may be 1-D); return finished blocks."""
+        lines = np.asarray(lines, dtype=np.float32)
+        if lines.ndim == 1:
+            lines = lines[None, :]
+        if lines.ndim != 2 or lines.shape[1] != self.sensor.cols:
+            raise ValueError(f"scan lines must have shape (n, {self.sensor.cols}), got {lines.shape}")
+        lines = np.where(np.isnan(lines), np.float32(0), lines)
+        if np.isinf(lines).any() or (lines < 0).any():
+            raise ValueError("scan lines contain infinite or negative ranges")
+        out: list[BlockResult] = []
+        k = self.config.k
+        start = 0
+        while start < len(lines):
+            take = min(k - self._buffered, len(lines) - start)
+            self._buffer.append(lines[start : start + take])
+            self._buffered += take
+            start += take
+            if self._buffered == k:
+                out.append(self._run_block())
+        return out
+
+    def flush(self) -> list[BlockResult]:
+        """Label the incomplete last block, if any."""
+        return [self._run_block()] if self._buffered else []
+
+    def _run_block(self) -> BlockResult:
+        block = np.concatenate(self._buffer, axis=0)
+        self._buffer, self._buffered = [], 0
+        carry = self.state if self.sensor.continuous_rows else None
+        res = prc_block(block, self.config, sensor=self.sensor, wrap=self.wrap, state=carry, row0=self._rows_done)
+        self._rows_done += len(block)
+        return res
+
+
+def classify_scan(scan: Scan, config: PRCConfig, stream: PRCStream | None = None) -> np.ndarray:
+    """PRC labels for one scan, ``uint8[rows, cols]``.
+
+    A spinning sensor's sweep is one block. A profiler's scan lines are streamed in blocks of
+    ``k``; pass the same ``stream`` for consecutive scans to keep the labels continuous (the
+    last incomplete block of each scan is then flushed with it).
+    """
+    if not scan.sensor.continuous_rows:
+        wrap = True if config.wrap_columns is None else config.wrap_columns
+        return prc_block(scan.ranges, config, sensor=scan.sensor, wrap=wrap).labels
+    stream = stream if stream is not None else PRCStream(config, scan.sensor)
+    results = stream.push(scan.ranges) + stream.flush()
+    return np.concatenate([r.labels for r in results], axis=0)

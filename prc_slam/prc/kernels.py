@@ -1,0 +1,401 @@
+"""Numba kernels for the per-pixel steps of PRC (Lehtola et al. 2019, Algorithm 1).
+
+Each kernel is one pass over a ``k x M`` block; the Python-level orchestration lives in
+:mod:`prc_slam.prc.algorithm`. Row index = scan line ``l``, column index = position ``h``
+in the scan line, so the paper's ``r_{i±1}`` are column neighbours and ``r_{i±M}`` row
+neighbours.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def support_counts(ranges, xi_s, xi_p, half_in, wrap):
+    """Support counts of eqs. (5)-(8).
+
+    ``C_adj`` counts neighbours ``j`` in N_adj-slice (eq. 7: columns ``h-1, h, h+1`` of the
+    previous and next scan line) with ``|r_i - r_j| < xi_s``; ``C_in`` counts neighbours in
+    N_in-slice (eq. 8: ``h-half_in .. h+half_in`` without ``h`` in the same line) with
+    ``|r_i - r_j| < xi_p``. Slots without a return (range 0) neither get nor give support.
+    Per-slot thresholds are compared against ``max(xi_i, xi_j)`` so that ``delta_ij`` stays
+    symmetric; with scalar-valued arrays this is the paper's fixed threshold.
+
+    Returns
+    -------
+    c_adj, c_in : int8 arrays, shape (rows, cols)
+    """
+    R, C = ranges.shape
+    c_adj = np.zeros((R, C), np.int8)
+    c_in = np.zeros((R, C), np.int8)
+    for r in range(R):
+        for c in range(C):
+            ri = ranges[r, c]
+            if ri <= 0.0:
+                continue
+            xs = xi_s[r, c]
+            xp = xi_p[r, c]
+            n_in = 0
+            for d in range(-half_in, half_in + 1):
+                if d == 0:
+                    continue
+                cc = c + d
+                if cc < 0 or cc >= C:
+                    if not wrap:
+                        continue
+                    cc = cc % C
+                rj = ranges[r, cc]
+                if rj > 0.0 and abs(ri - rj) < max(xp, xi_p[r, cc]):
+                    n_in += 1
+            n_adj = 0
+            for dr in (-1, 1):
+                rr = r + dr
+                if rr < 0 or rr >= R:
+                    continue
+                for d in (-1, 0, 1):
+                    cc = c + d
+                    if cc < 0 or cc >= C:
+                        if not wrap:
+                            continue
+                        cc = cc % C
+                    rj = ranges[rr, cc]
+                    if rj > 0.0 and abs(ri - rj) < max(xs, xi_s[rr, cc]):
+                        n_adj += 1
+            c_adj[r, c] = n_adj
+            c_in[r, c] = n_in
+    return c_adj, c_in
+
+
+@njit(cache=True, nogil=True)
+def supported_fixed(ranges, xi_s, xi_p, half_in, need_in, need_adj, wrap):
+    """``S_b`` of eq. (2) with the paper's constant thresholds: a return is supported when
+    at least ``need_in`` in-slice and ``need_adj`` adjacent-slice neighbours (eqs. 5-8) lie
+    within ``xi_p`` and ``xi_s`` of its range. Same result as :func:`support_counts` with
+    constant arrays; counting stops as soon as the outcome is decided (nearest neighbours
+    first)."""
+    R, C = ranges.shape
+    out = np.zeros((R, C), np.bool_)
+    for r in range(R):
+        for c in range(C):
+            ri = ranges[r, c]
+            if ri <= 0.0:
+                continue
+            interior = c - half_in >= 0 and c + half_in < C
+            n_in = 0
+            left = 2 * half_in
+            for k in range(1, half_in + 1):
+                for sgn in (-1, 1):
+                    cc = c + sgn * k
+                    if not interior and (cc < 0 or cc >= C):
+                        if not wrap:
+                            left -= 1
+                            continue
+                        cc = cc % C
+                    rj = ranges[r, cc]
+                    left -= 1
+                    if rj > 0.0 and abs(ri - rj) < xi_p:
+                        n_in += 1
+                if n_in >= need_in or n_in + left < need_in:
+                    break
+            if n_in < need_in:
+                continue
+            n_adj = 0
+            for d in (0, -1, 1):
+                cc = c + d
+                if cc < 0 or cc >= C:
+                    if not wrap:
+                        continue
+                    cc = cc % C
+                if r > 0:
+                    rj = ranges[r - 1, cc]
+                    if rj > 0.0 and abs(ri - rj) < xi_s:
+                        n_adj += 1
+                if r + 1 < R:
+                    rj = ranges[r + 1, cc]
+                    if rj > 0.0 and abs(ri - rj) < xi_s:
+                        n_adj += 1
+                if n_adj >= need_adj:
+                    out[r, c] = True
+                    break
+    return out
+
+
+@njit(cache=True, nogil=True)
+def gradient_background(ranges, supported, alpha, d_c, literal, wrap, both_axes):
+    """Extension of the background by eq. (9): the set G_b of supported points.
+
+    Eq. (9) keeps point ``i`` in the foreground while
+    ``alpha < (r_i - r_{i-1}) / max(r_{i+1} - r_{i-1}, d_c) < 1 - alpha``.
+    With ``literal`` the inequality is evaluated as printed. Otherwise the symmetric form
+    ``|(r_{i+1} - r_i) - (r_i - r_{i-1})| < (1 - 2 alpha) max(|r_{i+1} - r_{i-1}|, d_c)``
+    is used: identical to eq. (9) whenever ``r_{i+1} - r_{i-1} >= d_c`` (the two are the same
+    inequality, ``|a/(a+b) - 1/2| < 1/2 - alpha``), but it also keeps smooth surfaces whose
+    range falls or stays constant along the scan line, which the printed form would send to
+    the background wholesale. Points whose in-slice neighbours have no return are not
+    evaluated (they stay foreground).
+
+    With ``both_axes`` the same test is also applied across scan lines (rows ``l-1, l, l+1``
+    of one column), where a spinning sensor's ground-to-wall crease lies.
+    """
+    R, C = ranges.shape
+    g = np.zeros((R, C), np.bool_)
+    for r in range(R):
+        for c in range(C):
+            if not supported[r, c]:
+                continue
+            ri = ranges[r, c]
+            cm = c - 1
+            cp = c + 1
+            if cm >= 0 and cp < C:
+                if _gradient_break(ranges[r, cm], ri, ranges[r, cp], alpha, d_c, literal):
+                    g[r, c] = True
+                    continue
+            elif wrap:
+                if _gradient_break(ranges[r, cm % C], ri, ranges[r, cp % C], alpha, d_c, literal):
+                    g[r, c] = True
+                    continue
+            if both_axes and r > 0 and r + 1 < R:
+                if _gradient_break(ranges[r - 1, c], ri, ranges[r + 1, c], alpha, d_c, literal):
+                    g[r, c] = True
+    return g
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _gradient_break(a, ri, b, alpha, d_c, literal):
+    """True when eq. (9) fails for ``r_{i-1} = a, r_i = ri, r_{i+1} = b`` (False if a neighbour
+    has no return)."""
+    if a <= 0.0 or b <= 0.0:
+        return False
+    if literal:
+        q = (ri - a) / max(b - a, d_c)
+        return not (alpha < q < 1.0 - alpha)
+    return abs((b - ri) - (ri - a)) >= (1.0 - 2.0 * alpha) * max(abs(b - a), d_c)
+
+
+@njit(cache=True, nogil=True)
+def _find(parent, x):
+    root = x
+    while parent[root] != root:
+        root = parent[root]
+    while parent[x] != root:
+        nxt = parent[x]
+        parent[x] = root
+        x = nxt
+    return root
+
+
+@njit(cache=True, nogil=True)
+def _union(parent, a, b):
+    ra = _find(parent, a)
+    rb = _find(parent, b)
+    if ra < rb:
+        parent[rb] = ra
+    elif rb < ra:
+        parent[ra] = rb
+
+
+@njit(cache=True, nogil=True)
+def connected_components(mask, wrap):
+    """4-connected components of a binary image (Section II-D), two-pass union-find.
+
+    Labels are ``1..n`` in raster order of each component's first pixel; background is 0.
+    With ``wrap`` the first and last columns are neighbours (a full sensor revolution).
+
+    Returns
+    -------
+    labels : int32 array, shape (rows, cols)
+    n : int
+    """
+    R, C = mask.shape
+    lab = np.zeros((R, C), np.int32)
+    parent = np.zeros(R * C // 2 + 2 + R, np.int32)
+    n = 0
+    for r in range(R):
+        for c in range(C):
+            if not mask[r, c]:
+                continue
+            up = lab[r - 1, c] if r > 0 else 0
+            left = lab[r, c - 1] if c > 0 else 0
+            if up == 0 and left == 0:
+                n += 1
+                parent[n] = n
+                lab[r, c] = n
+            elif up != 0 and left != 0:
+                lab[r, c] = min(up, left)
+                if up != left:
+                    _union(parent, up, left)
+            else:
+                lab[r, c] = up if up != 0 else left
+    if wrap and C > 1:
+        for r in range(R):
+            if lab[r, 0] != 0 and lab[r, C - 1] != 0:
+                _union(parent, lab[r, 0], lab[r, C - 1])
+    final = np.zeros(n + 1, np.int32)
+    k = 0
+    for r in range(R):
+        for c in range(C):
+            v = lab[r, c]
+            if v == 0:
+                continue
+            root = _find(parent, v)
+            if final[root] == 0:
+                k += 1
+                final[root] = k
+            lab[r, c] = final[root]
+    return lab, k
+
+
+@njit(cache=True, nogil=True)
+def fill_holes(labels, holes, wrap):
+    """Hole filling of Section II-D-1: each hole pixel takes the nonzero label most common in
+    its 8-neighbourhood of ``labels`` (ties: the smaller label); 0 when it has none.
+
+    ``labels`` is not modified; the neighbourhoods are read from it, so the result does not
+    depend on the order in which holes are visited.
+    """
+    R, C = labels.shape
+    # padded copy: neighbour reads need no bounds checks
+    pad = np.zeros((R + 2, C + 2), np.int32)
+    pad[1:-1, 1:-1] = labels
+    if wrap:
+        pad[1:-1, 0] = labels[:, C - 1]
+        pad[1:-1, C + 1] = labels[:, 0]
+    out = labels.copy()
+    v = np.zeros(8, np.int32)
+    for r in range(R):
+        for c in range(C):
+            if not holes[r, c]:
+                continue
+            v[0] = pad[r, c]
+            v[1] = pad[r, c + 1]
+            v[2] = pad[r, c + 2]
+            v[3] = pad[r + 1, c]
+            v[4] = pad[r + 1, c + 2]
+            v[5] = pad[r + 2, c]
+            v[6] = pad[r + 2, c + 1]
+            v[7] = pad[r + 2, c + 2]
+            best = 0
+            best_n = 0
+            for a in range(8):
+                va = v[a]
+                if va == 0:
+                    continue
+                n = 0
+                for b in range(8):
+                    n += v[b] == va
+                if n > best_n or (n == best_n and va < best):
+                    best = va
+                    best_n = n
+            out[r, c] = best
+    return out
+
+
+@njit(cache=True, nogil=True)
+def dilate4(mask, iterations, wrap):
+    """Binary dilation with the 4-neighbourhood, ``iterations`` times (Section II-E)."""
+    R, C = mask.shape
+    cur = mask.copy()
+    for _ in range(iterations):
+        nxt = cur.copy()
+        for r in range(R):
+            for c in range(C):
+                if cur[r, c]:
+                    continue
+                hit = (r > 0 and cur[r - 1, c]) or (r + 1 < R and cur[r + 1, c])
+                if not hit:
+                    if c > 0:
+                        hit = cur[r, c - 1]
+                    elif wrap:
+                        hit = cur[r, C - 1]
+                if not hit:
+                    if c + 1 < C:
+                        hit = cur[r, c + 1]
+                    elif wrap:
+                        hit = cur[r, 0]
+                if hit:
+                    nxt[r, c] = True
+        cur = nxt
+    return cur
+
+
+@njit(cache=True, nogil=True)
+def split_smooth(h_local, smooth_lut):
+    """Masks of the smooth (``H_b`` segments of at least A pixels) and small (``Ṽ_b`` of
+    eq. 11) points, from block-local segment ids and a per-id smoothness table."""
+    R, C = h_local.shape
+    smooth = np.zeros((R, C), np.bool_)
+    small = np.zeros((R, C), np.bool_)
+    for r in range(R):
+        for c in range(C):
+            s = h_local[r, c]
+            if s == 0:
+                continue
+            if smooth_lut[s]:
+                smooth[r, c] = True
+            else:
+                small[r, c] = True
+    return smooth, small
+
+
+@njit(cache=True, nogil=True)
+def combine(h_local, glob, smooth, small, dilated, v_local, v_offset, supported):
+    """``R_b`` of step 5 (Sec. II-E): points of small segments, and supported points left
+    unlabelled by hole filling that the dilation reached, take their ``V_b`` id; the other
+    supported points keep their ``H_b`` id; unsupported points get 0.
+
+    Returns
+    -------
+    segments : int32 (rows, cols)
+    nonsmooth : bool (rows, cols)
+    """
+    R, C = h_local.shape
+    seg = np.zeros((R, C), np.int32)
+    nonsmooth = np.zeros((R, C), np.bool_)
+    for r in range(R):
+        for c in range(C):
+            if not supported[r, c]:
+                continue
+            s = h_local[r, c]
+            if small[r, c] or (s == 0 and dilated[r, c]):
+                nonsmooth[r, c] = True
+                v = v_local[r, c]
+                seg[r, c] = v + v_offset if v > 0 else 0
+            else:
+                seg[r, c] = glob[s]
+    return seg, nonsmooth
+
+
+@njit(cache=True, nogil=True)
+def class_codes(
+    ranges,
+    supported,
+    smooth,
+    nonsmooth,
+    segments,
+    ground,
+    smooth_code,
+    ground_code,
+    nonsmooth_code,
+    noise_code,
+    unclassified_code,
+):
+    """Step 6 (Sec. II-F): one code per slot. No return → 0; unsupported → noise; nonsmooth
+    (``V_b``) → ``nonsmooth_code``; smooth → ``ground_code`` for segment ``ground`` (0: none)
+    else ``smooth_code``; supported points in neither set → unclassified."""
+    R, C = ranges.shape
+    out = np.zeros((R, C), np.uint8)
+    for r in range(R):
+        for c in range(C):
+            if ranges[r, c] <= 0.0:
+                continue
+            if not supported[r, c]:
+                out[r, c] = noise_code
+            elif nonsmooth[r, c]:
+                out[r, c] = nonsmooth_code
+            elif smooth[r, c]:
+                out[r, c] = ground_code if (ground != 0 and segments[r, c] == ground) else smooth_code
+            else:
+                out[r, c] = unclassified_code
+    return out
