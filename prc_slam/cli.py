@@ -16,7 +16,7 @@ from rich.table import Table
 from prc_slam.config import Config, PRCConfig
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, help="Preregistration classification for LiDAR odometry.")
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)
 DEFAULT_KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti00"
 
 

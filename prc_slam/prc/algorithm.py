@@ -92,22 +92,33 @@ def support_thresholds(
     return xi_s, xi_p
 
 
-def supported_mask(ranges: np.ndarray, xi_s: np.ndarray, xi_p: np.ndarray, config: PRCConfig, wrap: bool) -> np.ndarray:
-    """``S_b`` of eq. (2): returns that satisfy the support condition (4).
+def support_counts_needed(config: PRCConfig) -> tuple[int, int]:
+    """Integer forms of eq. (4): ``C_in >= rho_c |N_in-slice|`` and ``C_adj >= rho_c |N_adj-slice|``.
 
-    ``C_in >= rho_c |N_in-slice|`` and ``C_adj >= rho_c |N_adj-slice|``; with the paper's
-    ``rho_c = 1/3`` that is at least 3 of the 8 in-slice neighbours and 2 of the 6
-    adjacent-slice neighbours. (The paper's text quotes the two constants the other way
+    With the paper's ``rho_c = 1/3`` that is at least 3 of the 8 in-slice neighbours and 2 of
+    the 6 adjacent-slice neighbours. (The paper's text quotes the two constants the other way
     round, "= 2" and "≈ 3"; eqs. (4), (7) and (8) give 8/3 and 2, which we follow.)
     """
     need_in = int(np.ceil(config.rho_c * 2 * config.in_slice_half - 1e-9))
     need_adj = int(np.ceil(config.rho_c * N_ADJ - 1e-9))
-    if not config.adaptive:
-        return kernels.supported_fixed(
-            ranges, np.float32(config.xi_s), np.float32(config.xi_p), config.in_slice_half, need_in, need_adj, wrap
-        )
-    c_adj, c_in = kernels.support_counts(ranges, xi_s, xi_p, config.in_slice_half, wrap)
-    return (ranges > 0) & (c_in >= need_in) & (c_adj >= need_adj)
+    return need_in, need_adj
+
+
+def support_and_background(
+    ranges: np.ndarray, config: PRCConfig, sensor: SensorModel | None, wrap: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """``S_b`` (eqs. 2-8) and ``G_b`` (eq. 9) of a block, as boolean images."""
+    xi_s, xi_p = support_thresholds(ranges, config, sensor)
+    need_in, need_adj = support_counts_needed(config)
+    return kernels.support_and_gradient(
+        ranges, xi_s, xi_p, config.in_slice_half, need_in, need_adj, config.alpha, config.d_c,
+        config.gradient == "literal", wrap, config.gradient_axes == "both",
+    )
+
+
+def supported_mask(ranges: np.ndarray, config: PRCConfig, sensor: SensorModel | None = None, wrap: bool = False) -> np.ndarray:
+    """``S_b`` of eq. (2): returns that satisfy the support condition (4)."""
+    return support_and_background(np.ascontiguousarray(ranges, dtype=np.float32), config, sensor, wrap)[0]
 
 
 def boundary_relabel(first_row: np.ndarray, prev_row: np.ndarray, min_votes: int) -> dict[int, int]:
@@ -172,17 +183,13 @@ def prc_block(
         Stream index of the block's first row (recorded in the result).
     """
     ranges = np.ascontiguousarray(ranges, dtype=np.float32)
-    rows, cols = ranges.shape
+    cols = ranges.shape[1]
     carry = state is not None
     state = state if state is not None else PRCState()
-    # Step 2: support, eqs. (4)-(8).
-    xi_s, xi_p = support_thresholds(ranges, config, sensor)
-    supported = supported_mask(ranges, xi_s, xi_p, config, wrap)
+    # Step 2: support, eqs. (4)-(8); step 3b: background extension, eq. (9).
+    supported, grad = support_and_background(ranges, config, sensor, wrap)
 
     # Step 3: H_b.
-    grad = kernels.gradient_background(
-        ranges, supported, config.alpha, config.d_c, config.gradient == "literal", wrap, config.gradient_axes == "both"
-    )
     foreground = supported & ~grad
     cc, n = kernels.connected_components(foreground, wrap)
     h_local = kernels.fill_holes(cc, grad, wrap)

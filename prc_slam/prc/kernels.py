@@ -14,7 +14,8 @@ from numba import njit
 
 @njit(cache=True, nogil=True)
 def support_counts(ranges, xi_s, xi_p, half_in, wrap):
-    """Support counts of eqs. (5)-(8).
+    """Support counts of eqs. (5)-(8) (reference kernel: the pipeline uses the one-pass
+    :func:`support_and_gradient`, which tests check against this one).
 
     ``C_adj`` counts neighbours ``j`` in N_adj-slice (eq. 7: columns ``h-1, h, h+1`` of the
     previous and next scan line) with ``|r_i - r_j| < xi_s``; ``C_in`` counts neighbours in
@@ -69,33 +70,42 @@ def support_counts(ranges, xi_s, xi_p, half_in, wrap):
 
 
 @njit(cache=True, nogil=True)
-def supported_fixed(ranges, xi_s, xi_p, half_in, need_in, need_adj, wrap):
-    """``S_b`` of eq. (2) with the paper's constant thresholds: a return is supported when
-    at least ``need_in`` in-slice and ``need_adj`` adjacent-slice neighbours (eqs. 5-8) lie
-    within ``xi_p`` and ``xi_s`` of its range. Same result as :func:`support_counts` with
-    constant arrays; counting stops as soon as the outcome is decided (nearest neighbours
-    first)."""
+def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, d_c, literal, wrap, both_axes):
+    """``S_b`` of eq. (2) and ``G_b`` of eq. (9) in one pass over the block.
+
+    A return is supported when at least ``need_in`` in-slice and ``need_adj`` adjacent-slice
+    neighbours (eqs. 5-8) lie within the thresholds (``max(xi_i, xi_j)`` as in
+    :func:`support_counts`, whose result this equals); counting stops as soon as the outcome
+    is decided, nearest neighbours first. Supported points are then tested by eq. (9) as in
+    :func:`gradient_background`.
+
+    Returns
+    -------
+    supported, grad : bool arrays, shape (rows, cols)
+    """
     R, C = ranges.shape
-    out = np.zeros((R, C), np.bool_)
+    sup = np.zeros((R, C), np.bool_)
+    grad = np.zeros((R, C), np.bool_)
     for r in range(R):
         for c in range(C):
             ri = ranges[r, c]
             if ri <= 0.0:
                 continue
+            xs = xi_s[r, c]
+            xp = xi_p[r, c]
             interior = c - half_in >= 0 and c + half_in < C
             n_in = 0
             left = 2 * half_in
             for k in range(1, half_in + 1):
                 for sgn in (-1, 1):
                     cc = c + sgn * k
+                    left -= 1
                     if not interior and (cc < 0 or cc >= C):
                         if not wrap:
-                            left -= 1
                             continue
                         cc = cc % C
                     rj = ranges[r, cc]
-                    left -= 1
-                    if rj > 0.0 and abs(ri - rj) < xi_p:
+                    if rj > 0.0 and abs(ri - rj) < max(xp, xi_p[r, cc]):
                         n_in += 1
                 if n_in >= need_in or n_in + left < need_in:
                     break
@@ -110,21 +120,36 @@ def supported_fixed(ranges, xi_s, xi_p, half_in, need_in, need_adj, wrap):
                     cc = cc % C
                 if r > 0:
                     rj = ranges[r - 1, cc]
-                    if rj > 0.0 and abs(ri - rj) < xi_s:
+                    if rj > 0.0 and abs(ri - rj) < max(xs, xi_s[r - 1, cc]):
                         n_adj += 1
                 if r + 1 < R:
                     rj = ranges[r + 1, cc]
-                    if rj > 0.0 and abs(ri - rj) < xi_s:
+                    if rj > 0.0 and abs(ri - rj) < max(xs, xi_s[r + 1, cc]):
                         n_adj += 1
                 if n_adj >= need_adj:
-                    out[r, c] = True
                     break
-    return out
+            if n_adj < need_adj:
+                continue
+            sup[r, c] = True
+            cm = c - 1
+            cp = c + 1
+            if cm < 0 or cp >= C:
+                if wrap:
+                    cm = cm % C
+                    cp = cp % C
+                else:
+                    cm = -1
+            if cm >= 0 and _gradient_break(ranges[r, cm], ri, ranges[r, cp], alpha, d_c, literal):
+                grad[r, c] = True
+            elif both_axes and r > 0 and r + 1 < R:
+                grad[r, c] = _gradient_break(ranges[r - 1, c], ri, ranges[r + 1, c], alpha, d_c, literal)
+    return sup, grad
 
 
 @njit(cache=True, nogil=True)
 def gradient_background(ranges, supported, alpha, d_c, literal, wrap, both_axes):
-    """Extension of the background by eq. (9): the set G_b of supported points.
+    """Extension of the background by eq. (9): the set G_b of supported points (reference
+    kernel; the pipeline computes it inside :func:`support_and_gradient`).
 
     Eq. (9) keeps point ``i`` in the foreground while
     ``alpha < (r_i - r_{i-1}) / max(r_{i+1} - r_{i-1}, d_c) < 1 - alpha``.

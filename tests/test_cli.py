@@ -1,0 +1,69 @@
+"""The prc-slam command line: classify outputs, demo, bench."""
+
+from __future__ import annotations
+
+import json
+
+import laspy
+import numpy as np
+from typer.testing import CliRunner
+
+from prc_slam.cli import app
+from tests.test_readers import make_kitti
+
+runner = CliRunner()
+
+
+def test_classify_writes_labels_json_and_las(tmp_path):
+    root = make_kitti(tmp_path / "seq", frames=2)
+    out = tmp_path / "out"
+    res = runner.invoke(
+        app,
+        [
+            "classify",
+            str(root),
+            "--preset",
+            "multibeam",
+            "--labels-out",
+            str(out / "labels"),
+            "--json",
+            str(out / "m.json"),
+            "--las",
+            str(out / "c.las"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    for i in range(2):
+        n = (root / "velodyne" / f"{i:06d}.bin").stat().st_size // 16
+        lab = np.fromfile(out / "labels" / f"{i:06d}.label", dtype=np.uint32)
+        assert lab.size == n  # one entry per input point
+        assert set(np.unique(lab & 0xFFFF)) <= {1, 2, 5, 6, 7}
+    m = json.loads((out / "m.json").read_text())
+    assert m["frames"] == 2 and m["points"] == 3200
+    assert {"per_class", "confusion", "points_per_s", "seconds"} <= set(m)
+    assert (out / "m.config.yaml").is_file()
+    las = laspy.read(out / "c.las")
+    assert len(las.points) == 3200 and las.header.version.minor == 4
+
+
+def test_classify_reports_bad_input_cleanly(tmp_path):
+    root = make_kitti(tmp_path / "seq", frames=1)
+    f = root / "velodyne" / "000000.bin"
+    f.write_bytes(f.read_bytes()[:-3])
+    res = runner.invoke(app, ["classify", str(root)])
+    assert res.exit_code == 2
+    assert "000000.bin: truncated" in res.output
+
+
+def test_demo_runs(tmp_path):
+    res = runner.invoke(app, ["demo", "--frames", "3", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["frames"] == 3 and m["per_class"]["noise"]["recall"] > 0.9
+
+
+def test_bench_json(tmp_path):
+    res = runner.invoke(app, ["bench", "--kitti", str(tmp_path / "none"), "--json", str(tmp_path / "b.json")])
+    assert res.exit_code == 0, res.output
+    b = json.loads((tmp_path / "b.json").read_text())
+    assert b["prc"]["points_per_s"] > 0 and b["prc"]["block_shape"] == [99, 2154]
