@@ -27,6 +27,22 @@ class Dataset(Protocol):
     def __iter__(self) -> Iterator[Scan]: ...
 
 
+class SequenceBase:
+    """Indexable, iterable sequence of Scans; subclasses implement ``__getitem__`` over ``files``."""
+
+    files: list[Path]
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def __iter__(self) -> Iterator[Scan]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def __getitem__(self, i: int) -> Scan:
+        raise NotImplementedError
+
+
 def detect_format(path: str | Path) -> str:
     """Guess the input format of ``path`` (raises :class:`DataError` when unknown)."""
     path = Path(path)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from data_tools.datasets import SequenceBase
 from data_tools.errors import DataError
 from prc_slam import labels as L
 from prc_slam.scan import Scan, SpinningSensor
@@ -190,7 +191,7 @@ def unfold_scan(
     return UnfoldedScan(ranges.reshape(rows, cols), slot, representative, altitude, collisions)
 
 
-class KittiSequence:
+class KittiSequence(SequenceBase):
     """A KITTI / SemanticKITTI sequence directory.
 
     Layout: ``velodyne/NNNNNN.bin``, optional ``labels/NNNNNN.label``, ``poses.txt`` (camera 0
@@ -220,13 +221,6 @@ class KittiSequence:
             self.poses = np.linalg.inv(tr) @ cam @ tr
             if len(self.poses) < len(self.files):
                 raise DataError(f"{self.root / 'poses.txt'}: {len(self.poses)} poses for {len(self.files)} scans")
-
-    def __len__(self) -> int:
-        return len(self.files)
-
-    def __iter__(self):
-        for i in range(len(self)):
-            yield self[i]
 
     def __getitem__(self, i: int) -> Scan:
         path = self.files[i]

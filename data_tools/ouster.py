@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from data_tools.datasets import SequenceBase
 from data_tools.errors import DataError
 from prc_slam.scan import Scan, SpinningSensor
 
@@ -100,7 +101,7 @@ def read_ouster_npz(path: str | Path, *, destaggered: bool = False, name: str | 
     )
 
 
-class OusterSequence:
+class OusterSequence(SequenceBase):
     """One or more decoded Ouster sweeps (a ``.npz`` file or a directory of them, sorted)."""
 
     format = "ouster"
@@ -115,13 +116,6 @@ class OusterSequence:
         self.destaggered = destaggered
         self.poses = None
         self.times = None
-
-    def __len__(self) -> int:
-        return len(self.files)
-
-    def __iter__(self):
-        for i in range(len(self)):
-            yield self[i]
 
     def __getitem__(self, i: int) -> Scan:
         return read_ouster_npz(self.files[i], destaggered=self.destaggered, name=f"{i:06d}")

@@ -111,12 +111,23 @@ def support_and_background(
     xi_s, xi_p = support_thresholds(ranges, config, sensor)
     need_in, need_adj = support_counts_needed(config)
     return kernels.support_and_gradient(
-        ranges, xi_s, xi_p, config.in_slice_half, need_in, need_adj, config.alpha, config.d_c,
-        config.gradient == "literal", wrap, config.gradient_axes == "both",
+        ranges,
+        xi_s,
+        xi_p,
+        config.in_slice_half,
+        need_in,
+        need_adj,
+        config.alpha,
+        config.d_c,
+        config.gradient == "literal",
+        wrap,
+        config.gradient_axes == "both",
     )
 
 
-def supported_mask(ranges: np.ndarray, config: PRCConfig, sensor: SensorModel | None = None, wrap: bool = False) -> np.ndarray:
+def supported_mask(
+    ranges: np.ndarray, config: PRCConfig, sensor: SensorModel | None = None, wrap: bool = False
+) -> np.ndarray:
     """``S_b`` of eq. (2): returns that satisfy the support condition (4)."""
     return support_and_background(np.ascontiguousarray(ranges, dtype=np.float32), config, sensor, wrap)[0]
 
@@ -219,37 +230,18 @@ def prc_block(
         h_local, glob.astype(np.int32), smooth, small, dilated, v_local, v_offset, supported
     )
 
-    # Step 6: classification.
-    if config.mode == "urban":
+    # Step 6: classification. Urban: the largest smooth patch is ground, other smooth patches
+    # building; forest: smooth patches are trunks, ground comes from eq. (12).
+    urban = config.mode == "urban"
+    ground = 0
+    if urban:
         is_smooth = seg_area >= config.A
         ground = _ground_segment(uniq[is_smooth], seg_area[is_smooth], state if carry else None)
-        out = kernels.class_codes(
-            ranges,
-            supported,
-            smooth,
-            nonsmooth,
-            segments,
-            ground,
-            L.BUILDING,
-            L.GROUND,
-            L.VEGETATION,
-            L.NOISE,
-            L.UNCLASSIFIED,
-        )
-    else:
-        out = kernels.class_codes(
-            ranges,
-            supported,
-            smooth,
-            nonsmooth,
-            segments,
-            0,
-            L.TRUNK,
-            L.GROUND,
-            L.VEGETATION,
-            L.NOISE,
-            L.UNCLASSIFIED,
-        )
+    out = kernels.class_codes(
+        ranges, supported, smooth, nonsmooth, segments, ground,
+        L.BUILDING if urban else L.TRUNK, L.GROUND, L.VEGETATION, L.NOISE, L.UNCLASSIFIED,
+    )  # fmt: skip
+    if not urban:
         out[column_density_ground(smooth, config) & supported] = L.GROUND
 
     if carry:
@@ -351,16 +343,16 @@ class PRCStream:
         return res
 
 
-def classify_scan(scan: Scan, config: PRCConfig, stream: PRCStream | None = None) -> np.ndarray:
-    """PRC labels for one scan, ``uint8[rows, cols]``.
+def classify_scan(scan: Scan, config: PRCConfig) -> np.ndarray:
+    """PRC labels for one scan on its own, ``uint8[rows, cols]``.
 
-    A spinning sensor's sweep is one block. A profiler's scan lines are streamed in blocks of
-    ``k``; pass the same ``stream`` for consecutive scans to keep the labels continuous (the
-    last incomplete block of each scan is then flushed with it).
+    A spinning sensor's sweep is one block. A profiler scan's lines are cut into blocks of
+    ``config.k`` (the last one shorter); for a recording split into several scans use
+    :func:`prc_slam.pipeline.classify_frames`, which keeps one stream across them.
     """
     if not scan.sensor.continuous_rows:
         wrap = True if config.wrap_columns is None else config.wrap_columns
         return prc_block(scan.ranges, config, sensor=scan.sensor, wrap=wrap).labels
-    stream = stream if stream is not None else PRCStream(config, scan.sensor)
+    stream = PRCStream(config, scan.sensor)
     results = stream.push(scan.ranges) + stream.flush()
     return np.concatenate([r.labels for r in results], axis=0)
