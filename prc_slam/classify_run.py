@@ -11,6 +11,7 @@ from prc_slam import labels as L
 from prc_slam.config import PRCConfig
 from prc_slam.evaluation import ConfusionAccumulator
 from prc_slam.pipeline import classify_frames
+from prc_slam.prc.algorithm import warm_up
 from prc_slam.scan import Scan
 
 #: Reference classes whose points must not be called noise (issue 2 acceptance).
@@ -43,6 +44,7 @@ def run_classification(
     frames = points = 0
     prc_seconds = 0.0
     have_gt = False
+    warm_up()
     t_start = time.perf_counter()
     for frame in classify_frames(scans, config):
         frames += 1

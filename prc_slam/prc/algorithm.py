@@ -343,6 +343,26 @@ class PRCStream:
         return res
 
 
+def warm_up() -> None:
+    """Compile (or load from numba's cache) every kernel, so that timings measure the work."""
+    tiny = np.ones((4, 12), dtype=np.float32)
+    for mode in ("urban", "forest"):
+        config = PRCConfig(mode=mode, k=2)
+        prc_block(tiny, config, wrap=True, state=PRCState())
+        prc_block(tiny, config.model_copy(update={"adaptive": True}), sensor=_WarmSensor(), wrap=False)
+
+
+class _WarmSensor(SensorModel):
+    """Minimal sensor for :func:`warm_up` (unit spacing everywhere)."""
+
+    def __init__(self) -> None:
+        super().__init__(rows=4, cols=12, continuous_rows=False)
+
+    def neighbour_spacing(self, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        one = np.ones_like(ranges, dtype=np.float32)
+        return one, one
+
+
 def classify_scan(scan: Scan, config: PRCConfig) -> np.ndarray:
     """PRC labels for one scan on its own, ``uint8[rows, cols]``.
 
