@@ -122,6 +122,7 @@ def support_and_background(
         config.gradient == "literal",
         wrap,
         config.gradient_axes == "both",
+        not config.adaptive,  # constant thresholds
     )
 
 

@@ -70,14 +70,15 @@ def support_counts(ranges, xi_s, xi_p, half_in, wrap):
 
 
 @njit(cache=True, nogil=True)
-def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, d_c, literal, wrap, both_axes):
+def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, d_c, literal, wrap, both_axes, uniform):
     """``S_b`` of eq. (2) and ``G_b`` of eq. (9) in one pass over the block.
 
     A return is supported when at least ``need_in`` in-slice and ``need_adj`` adjacent-slice
     neighbours (eqs. 5-8) lie within the thresholds (``max(xi_i, xi_j)`` as in
     :func:`support_counts`, whose result this equals); counting stops as soon as the outcome
     is decided, nearest neighbours first. Supported points are then tested by eq. (9) as in
-    :func:`gradient_background`.
+    :func:`gradient_background`. ``uniform`` says the threshold arrays are constant, which
+    spares the neighbours' threshold loads.
 
     Returns
     -------
@@ -105,7 +106,7 @@ def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, 
                             continue
                         cc = cc % C
                     rj = ranges[r, cc]
-                    if rj > 0.0 and abs(ri - rj) < max(xp, xi_p[r, cc]):
+                    if rj > 0.0 and abs(ri - rj) < (xp if uniform else max(xp, xi_p[r, cc])):
                         n_in += 1
                 if n_in >= need_in or n_in + left < need_in:
                     break
@@ -120,11 +121,11 @@ def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, 
                     cc = cc % C
                 if r > 0:
                     rj = ranges[r - 1, cc]
-                    if rj > 0.0 and abs(ri - rj) < max(xs, xi_s[r - 1, cc]):
+                    if rj > 0.0 and abs(ri - rj) < (xs if uniform else max(xs, xi_s[r - 1, cc])):
                         n_adj += 1
                 if r + 1 < R:
                     rj = ranges[r + 1, cc]
-                    if rj > 0.0 and abs(ri - rj) < max(xs, xi_s[r + 1, cc]):
+                    if rj > 0.0 and abs(ri - rj) < (xs if uniform else max(xs, xi_s[r + 1, cc])):
                         n_adj += 1
                 if n_adj >= need_adj:
                     break
@@ -301,6 +302,18 @@ def fill_holes(labels, holes, wrap):
             v[5] = pad[r + 2, c]
             v[6] = pad[r + 2, c + 1]
             v[7] = pad[r + 2, c + 2]
+            # common case: every labelled neighbour carries the same label
+            first = 0
+            mixed = False
+            for a in range(8):
+                if v[a] != 0:
+                    if first == 0:
+                        first = v[a]
+                    elif v[a] != first:
+                        mixed = True
+            if not mixed:
+                out[r, c] = first
+                continue
             best = 0
             best_n = 0
             for a in range(8):
@@ -322,26 +335,15 @@ def dilate4(mask, iterations, wrap):
     """Binary dilation with the 4-neighbourhood, ``iterations`` times (Section II-E)."""
     R, C = mask.shape
     cur = mask.copy()
+    pad = np.zeros((R + 2, C + 2), np.bool_)
     for _ in range(iterations):
-        nxt = cur.copy()
+        pad[1:-1, 1:-1] = cur
+        if wrap:
+            pad[1:-1, 0] = cur[:, C - 1]
+            pad[1:-1, C + 1] = cur[:, 0]
         for r in range(R):
             for c in range(C):
-                if cur[r, c]:
-                    continue
-                hit = (r > 0 and cur[r - 1, c]) or (r + 1 < R and cur[r + 1, c])
-                if not hit:
-                    if c > 0:
-                        hit = cur[r, c - 1]
-                    elif wrap:
-                        hit = cur[r, C - 1]
-                if not hit:
-                    if c + 1 < C:
-                        hit = cur[r, c + 1]
-                    elif wrap:
-                        hit = cur[r, 0]
-                if hit:
-                    nxt[r, c] = True
-        cur = nxt
+                cur[r, c] = pad[r + 1, c + 1] | pad[r, c + 1] | pad[r + 2, c + 1] | pad[r + 1, c] | pad[r + 1, c + 2]
     return cur
 
 
