@@ -11,7 +11,7 @@ import numpy as np
 from data_tools.errors import DataError
 from prc_slam.scan import Scan
 
-FORMATS = ("kitti", "ouster")
+FORMATS = ("kitti", "ouster", "sim")
 
 
 class Dataset(Protocol):
@@ -49,13 +49,18 @@ def detect_format(path: str | Path) -> str:
     if not path.exists():
         raise DataError(f"{path}: no such file or directory")
     if path.is_dir():
+        if (path / "sim.json").is_file():
+            return "sim"
         if (path / "velodyne").is_dir():
             return "kitti"
         if any(path.glob("*.npz")):
             return "ouster"
     elif path.suffix == ".npz":
         return "ouster"
-    raise DataError(f"{path}: unknown input format (expected a KITTI directory with velodyne/, or Ouster .npz)")
+    raise DataError(
+        f"{path}: unknown input format (expected a simulated sequence with sim.json, a KITTI directory with "
+        "velodyne/, or Ouster .npz)"
+    )
 
 
 def open_dataset(path: str | Path, fmt: str | None = None, **options: object) -> Dataset:
@@ -69,4 +74,8 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
         from data_tools.ouster import OusterSequence
 
         return OusterSequence(path, destaggered=bool(options.get("destaggered", False)))
+    if fmt == "sim":
+        from data_tools.sim.dataset import SimSequence
+
+        return SimSequence(path)
     raise DataError(f"{path}: unsupported format {fmt!r}; choose from {FORMATS}")

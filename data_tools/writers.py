@@ -62,3 +62,27 @@ def write_las(
         las.gps_time = np.asarray(gps_time, dtype=np.float64)
     path.parent.mkdir(parents=True, exist_ok=True)
     las.write(path)
+
+
+def write_ply(path: str | Path, xyz: np.ndarray, labels: np.ndarray | None = None) -> None:
+    """Binary little-endian PLY with float32 x, y, z and an optional uint8 ``label`` per vertex."""
+    path = Path(path)
+    xyz = np.asarray(xyz, dtype=np.float32)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise DataError(f"{path}: xyz must be (N, 3), got {xyz.shape}")
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if labels is not None:
+        labels = np.asarray(labels)
+        if labels.shape != (len(xyz),):
+            raise DataError(f"{path}: {labels.size} labels for {len(xyz)} points")
+        fields.append(("label", "u1"))
+    rec = np.empty(len(xyz), dtype=fields)
+    rec["x"], rec["y"], rec["z"] = xyz.T
+    if labels is not None:
+        rec["label"] = labels
+    props = "".join(f"property {'float' if t == '<f4' else 'uchar'} {n}\n" for n, t in fields)
+    header = f"ply\nformat binary_little_endian 1.0\nelement vertex {len(xyz)}\n{props}end_header\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(rec.tobytes())

@@ -91,6 +91,21 @@ SEMANTIC_KITTI_TO_CODE: dict[int, int] = {
     257: VEHICLE,  # moving-bus
     258: VEHICLE,  # moving-truck
     259: VEHICLE,  # moving-other-vehicle
+    66: CURB,  # not a SemanticKITTI class: our simulator's KITTI export writes curbs as 66
+}
+
+#: Our codes written as SemanticKITTI ids (the simulator's KITTI export); inverse of the
+#: table above for every code that has an id.
+CODE_TO_SEMANTIC_KITTI: dict[int, int] = {
+    UNCLASSIFIED: 0,
+    NOISE: 1,
+    VEHICLE: 10,
+    GROUND: 40,
+    BUILDING: 50,
+    VEGETATION: 70,
+    TRUNK: 71,
+    POLE: 80,
+    CURB: 66,
 }
 
 _SEMKITTI_LUT = np.full(1 << 16, UNCLASSIFIED, dtype=np.uint8)
@@ -112,6 +127,17 @@ def from_semantic_kitti(raw: np.ndarray) -> np.ndarray:
         One code per input label, same shape.
     """
     return _SEMKITTI_LUT[np.asarray(raw, dtype=np.uint32) & 0xFFFF]
+
+
+def to_semantic_kitti(codes: np.ndarray, instances: np.ndarray | None = None) -> np.ndarray:
+    """Encode our codes (and instance ids) as SemanticKITTI ``uint32`` labels."""
+    lut = np.zeros(256, dtype=np.uint32)
+    for code, sem in CODE_TO_SEMANTIC_KITTI.items():
+        lut[code] = sem
+    out = lut[np.asarray(codes, dtype=np.uint8)]
+    if instances is not None:
+        out |= (np.asarray(instances, dtype=np.uint32) & 0xFFFF) << 16
+    return out
 
 
 def instances_from_semantic_kitti(raw: np.ndarray) -> np.ndarray:

@@ -1,0 +1,1 @@
+"""The LiDAR simulator: procedural scenes, sensors, trajectories, noise, ray casting."""
