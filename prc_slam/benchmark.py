@@ -75,6 +75,31 @@ def bench_prc(kitti_dir: Path | None = None, repeat: int = 30) -> dict[str, Any]
     return out
 
 
+def bench_sim(frames: int = 10) -> dict[str, Any]:
+    """Simulator: Embree ray casting alone, and whole hdl64 urban frames (casting, glass
+    re-casts and every noise model), in rays per second."""
+    import open3d as o3d
+
+    from data_tools.sim.simulator import SimConfig, Simulator
+
+    sim = Simulator(SimConfig(scene="urban", sensor="hdl64", frames=frames + 1))
+    f = sim.frame(0)
+    rot, pos = sim.trajectory.poses(f.line_times)
+    d = (sim.dirs.transpose(1, 0, 2) @ rot.transpose(0, 2, 1)).transpose(1, 0, 2).reshape(-1, 3)
+    o = np.broadcast_to(pos[None], (sim.sensor.model.rows, sim.sensor.model.cols, 3)).reshape(-1, 3)
+    rays = o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32))
+    cast = median_seconds(lambda: sim._static.cast_rays(rays), 10)
+    t0 = time.perf_counter()
+    n = sum(sim.frame(i).rays for i in range(1, frames + 1))
+    whole = time.perf_counter() - t0
+    return {
+        "rays_per_s": len(d) / cast,
+        "frame_rays_per_s": n / whole,
+        "ms_per_hdl64_frame": whole / frames * 1e3,
+        "triangles": sim.scene.mesh.n_triangles,
+    }
+
+
 def run_bench(kitti_dir: Path | None = None) -> dict[str, Any]:
     """All sections implemented so far."""
-    return {"prc": bench_prc(kitti_dir)}
+    return {"prc": bench_prc(kitti_dir), "sim": bench_sim()}

@@ -245,20 +245,29 @@ def bench(
 @app.command()
 def demo(
     out: Path = typer.Option(Path("out/demo"), help="output directory"),
-    frames: int = typer.Option(20, help="frames of 99 scan lines in the simulated drive"),
+    frames: int = typer.Option(60, min=1, help="frames of the simulated hdl64 urban drive"),
     seed: int = typer.Option(0, help="scene and noise seed"),
 ) -> None:
-    """PRC on a simulated profiler drive along a street, scored against its ground truth."""
-    from data_tools.synthetic import ProfilerStreet
+    """Simulate an urban drive (cached after the first run) and classify it with PRC, scored
+    against the simulator's ground truth."""
+    from data_tools.sim.dataset import SimSequence, write_sequence
+    from data_tools.sim.simulator import NoiseConfig, SimConfig, Simulator
     from prc_slam.classify_run import run_classification
 
-    dataset = ProfilerStreet(frames=frames, seed=seed)
-    cfg = PRCConfig.preset("urban")
+    sim_cfg = SimConfig(scene="urban", sensor="hdl64", frames=frames, seed=seed, noise=NoiseConfig(outlier_rate=0.01))
+    root = out / f"sim_urban_hdl64_{frames}_seed{seed}"
+    cached = (root / "sim.json").is_file() and SimSequence(root).config == sim_cfg
     with _progress() as progress:
-        task = progress.add_task("PRC (simulated profiler street)", total=len(dataset))
-        metrics = run_classification(iter(dataset), cfg, on_frame=lambda _f: progress.advance(task))
-    metrics["input"] = dataset.name
-    _report(metrics, "PRC on the simulated profiler street (paper parameters)")
+        if not cached:
+            task = progress.add_task("simulating the urban drive", total=frames)
+            write_sequence(Simulator(sim_cfg), root, on_frame=lambda _f: progress.advance(task))
+        seq = SimSequence(root)
+        cfg = PRCConfig.preset("multibeam")
+        task = progress.add_task("PRC", total=len(seq))
+        metrics = run_classification(iter(seq), cfg, on_frame=lambda _f: progress.advance(task))
+    metrics["input"] = str(root)
+    console.print(f"simulated drive: {root}" + (" (cached)" if cached else ""))
+    _report(metrics, "PRC (multibeam setting) on the simulated urban drive, 1 % outliers")
     _write_json(out / "metrics.json", metrics, Config(prc=cfg))
 
 

@@ -69,3 +69,79 @@ class ConfusionAccumulator:
             "matrix": np.round(norm, 6).tolist(),
             "counts": sub.tolist(),
         }
+
+
+# ---- trajectories ------------------------------------------------------------------------
+
+
+def _check_trajectories(estimate: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    est = np.asarray(estimate, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    if est.shape != ref.shape or est.ndim != 3 or est.shape[1:] != (4, 4):
+        raise ValueError(f"trajectories must both be (n, 4, 4), got {est.shape} and {ref.shape}")
+    if not (np.isfinite(est).all() and np.isfinite(ref).all()):
+        raise ValueError("trajectories contain non-finite values")
+    return est, ref
+
+
+def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least-squares similarity ``target ≈ s R source + t`` (Umeyama 1991). Returns R, t, s."""
+    mu_s, mu_t = source.mean(axis=0), target.mean(axis=0)
+    xs, xt = source - mu_s, target - mu_t
+    cov = xt.T @ xs / len(source)
+    u, d, vt = np.linalg.svd(cov)
+    sign = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        sign[2, 2] = -1
+    rot = u @ sign @ vt
+    scale = float(np.trace(np.diag(d) @ sign) / xs.var(axis=0).sum()) if with_scale else 1.0
+    return rot, mu_t - scale * rot @ mu_s, scale
+
+
+def ate_rmse(estimate: np.ndarray, reference: np.ndarray) -> float:
+    """Absolute trajectory error (m, RMSE of positions) after SE(3) Umeyama alignment."""
+    est, ref = _check_trajectories(estimate, reference)
+    p, q = est[:, :3, 3], ref[:, :3, 3]
+    rot, t, _ = umeyama(p, q)
+    return float(np.sqrt(np.mean(np.sum((p @ rot.T + t - q) ** 2, axis=1))))
+
+
+def rpe(estimate: np.ndarray, reference: np.ndarray, delta: int = 1) -> np.ndarray:
+    """Relative pose error per frame pair ``(i, i + delta)``: translation error norms (m)."""
+    est, ref = _check_trajectories(estimate, reference)
+    if len(est) <= delta:
+        return np.zeros(0)
+    d_est = np.linalg.inv(est[:-delta]) @ est[delta:]
+    d_ref = np.linalg.inv(ref[:-delta]) @ ref[delta:]
+    err = np.linalg.inv(d_ref) @ d_est
+    return np.linalg.norm(err[:, :3, 3], axis=1)
+
+
+KITTI_LENGTHS = (100, 200, 300, 400, 500, 600, 700, 800)
+
+
+def kitti_errors(
+    estimate: np.ndarray, reference: np.ndarray, lengths: tuple[float, ...] = KITTI_LENGTHS, step: int = 10
+) -> tuple[float | None, float | None]:
+    """KITTI odometry error as the devkit computes it: for every ``step``-th first frame and each
+    segment length, the relative pose error over the first sub-sequence at least that long,
+    translation in percent of the length and rotation in degrees per metre, averaged.
+
+    Returns ``(None, None)`` when the trajectory is shorter than the shortest length.
+    """
+    est, ref = _check_trajectories(estimate, reference)
+    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref[:, :3, 3], axis=0), axis=1))])
+    t_err, r_err = [], []
+    for first in range(0, len(ref), step):
+        for length in lengths:
+            last = int(np.searchsorted(dist, dist[first] + length))
+            if last >= len(ref):
+                continue
+            d_ref = np.linalg.inv(ref[first]) @ ref[last]
+            d_est = np.linalg.inv(est[first]) @ est[last]
+            e = np.linalg.inv(d_est) @ d_ref
+            t_err.append(np.linalg.norm(e[:3, 3]) / length)
+            r_err.append(np.arccos(np.clip((np.trace(e[:3, :3]) - 1) / 2, -1, 1)) / length)
+    if not t_err:
+        return None, None
+    return float(np.mean(t_err) * 100.0), float(np.degrees(np.mean(r_err)))

@@ -166,4 +166,14 @@ def export_kitti(seq: SimSequence, out: str | Path, on_frame: Callable[[int], No
     write_kitti_poses(out / "poses.txt", seq.poses)
     np.savetxt(out / "times.txt", seq.times, fmt="%.6e")
     (out / "calib.txt").write_text(KITTI_CALIB)
+    # the KITTI odometry benchmark layout as well (relative links), for tools that expect it,
+    # e.g. ``kiss_icp_pipeline --dataloader kitti --sequence 00 OUT``
+    seq_dir = out / "sequences" / "00"
+    seq_dir.mkdir(parents=True, exist_ok=True)
+    (out / "poses").mkdir(exist_ok=True)
+    links = [(seq_dir / n, Path("../..") / n) for n in ("velodyne", "labels", "calib.txt", "times.txt")]
+    links.append((out / "poses" / "00.txt", Path("../poses.txt")))
+    for link, target in links:
+        if not link.is_symlink():
+            link.symlink_to(target)
     return out

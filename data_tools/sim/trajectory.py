@@ -79,7 +79,7 @@ def speed_profile(
     for c in centres:
         d = np.abs(t - c)
         v = np.minimum(v, np.clip((d - stop_time / 2) / ramp, 0, 1) * cruise)
-    return np.minimum(v, np.clip(t / ramp, 0, 1) * cruise)  # start from rest
+    return v
 
 
 def vehicle_trajectory(
@@ -92,8 +92,8 @@ def vehicle_trajectory(
     stops: int = 1,
     seed: int = 0,
 ) -> Trajectory:
-    """A car driving along the street's centreline in the right lane, starting from rest, with
-    ``stops`` stops; pitch and roll follow the road's slope and camber."""
+    """A car driving along the street's centreline in the right lane at ``speed`` with ``stops``
+    stops; pitch and roll follow the road's slope and camber."""
     rng = np.random.default_rng(seed + 101)
     v = speed_profile(duration, speed, rng, stops)
     s = 5.0 + np.concatenate([[0.0], np.cumsum(v[:-1]) / RATE])
