@@ -100,3 +100,16 @@ def test_simulate_then_classify(tmp_path):
     assert m["per_class"]["ground"]["recall"] > 0.8
     bad = runner.invoke(app, ["simulate", "--out", str(tmp_path / "x"), "--frames", "100000"])
     assert bad.exit_code == 2 and "needs" in bad.output
+
+
+def test_ply_writer(tmp_path):
+    from data_tools.writers import write_ply
+
+    xyz = np.arange(12, dtype=np.float32).reshape(4, 3)
+    write_ply(tmp_path / "c.ply", xyz, np.array([2, 5, 6, 7], np.uint8))
+    raw = (tmp_path / "c.ply").read_bytes()
+    header, body = raw.split(b"end_header\n")
+    assert b"element vertex 4" in header and b"property uchar label" in header
+    rec = np.frombuffer(body, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("label", "u1")])
+    np.testing.assert_array_equal(np.column_stack([rec["x"], rec["y"], rec["z"]]), xyz)
+    assert rec["label"].tolist() == [2, 5, 6, 7]

@@ -70,3 +70,32 @@ def test_kitti_and_tum_files_round_trip(tmp_path):
     t, back = read_tum_poses(tmp_path / "t.txt")
     np.testing.assert_allclose(back, poses, atol=1e-7)
     np.testing.assert_allclose(t, np.arange(20) * 0.1)
+
+
+def test_ate_and_rpe_agree_with_evo(tmp_path):
+    from evo.core import metrics
+    from evo.tools import file_interface
+
+    rng = np.random.default_rng(1)
+    ref = straight(120, 0.8)
+    for i in range(1, 120):  # a curving reference
+        ref[i] = ref[i - 1] @ yaw(0.02) @ (np.linalg.inv(straight(2, 0.8)[0]) @ straight(2, 0.8)[1])
+    est = ref.copy()
+    est[:, :3, 3] += np.cumsum(rng.normal(0, 0.02, (120, 3)), axis=0)  # drift
+    est = yaw(0.4) @ est  # and a different start frame
+    write_kitti_poses(tmp_path / "ref.txt", ref)
+    write_kitti_poses(tmp_path / "est.txt", est)
+    traj_ref = file_interface.read_kitti_poses_file(str(tmp_path / "ref.txt"))
+    traj_est = file_interface.read_kitti_poses_file(str(tmp_path / "est.txt"))
+    traj_est.align(traj_ref, correct_scale=False)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((traj_ref, traj_est))
+    assert ate_rmse(est, ref) == pytest.approx(ape.get_statistic(metrics.StatisticsType.rmse), rel=1e-6)
+    rel = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames, all_pairs=False)
+    rel.process_data(
+        (
+            file_interface.read_kitti_poses_file(str(tmp_path / "ref.txt")),
+            file_interface.read_kitti_poses_file(str(tmp_path / "est.txt")),
+        )
+    )
+    np.testing.assert_allclose(rpe(est, ref), rel.error, rtol=1e-6, atol=1e-9)
