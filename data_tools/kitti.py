@@ -228,7 +228,9 @@ class KittiSequence(SequenceBase):
         un = unfold_scan(pts, self.rows, self.cols, str(path))
         sensor = SpinningSensor.create(un.altitude, self.cols, sweep_period=SWEEP_PERIOD)
         t0 = float(self.times[i]) if self.times is not None else i * SWEEP_PERIOD
-        col_times = t0 + (np.arange(self.cols) + 0.5) / self.cols * SWEEP_PERIOD
+        # the HDL-64E spins clockwise: within a sweep that starts facing forward (azimuth 0),
+        # time runs against increasing azimuth
+        col_times = t0 + (1.0 - (np.arange(self.cols) + 0.5) / self.cols) * SWEEP_PERIOD
         rep = un.representative.reshape(self.rows, self.cols)
         has = rep >= 0
         intensity = np.zeros((self.rows, self.cols), dtype=np.float32)

@@ -168,6 +168,111 @@ def _report(metrics: dict[str, Any], title: str) -> None:
         )
 
 
+class FilterMode(str, Enum):
+    none = "none"
+    prc = "prc"
+
+
+class PoseFormat(str, Enum):
+    kitti = "kitti"
+    tum = "tum"
+
+
+def _run_config(preset: Preset, config_path: Path | None) -> Config:
+    if config_path is not None:
+        return Config.from_yaml(config_path)
+    return Config(prc=PRCConfig.preset("multibeam" if preset is Preset.multibeam else "urban"))
+
+
+def _compare(input: Path, variants: list[str], cfg: Config, fmt: str | None, max_frames: int | None):
+    from data_tools import open_dataset
+    from prc_slam.odometry.compare import run_compare
+
+    dataset = open_dataset(input, fmt)
+    n = len(dataset) if max_frames is None else min(max_frames, len(dataset))
+    with _progress() as progress:
+        task = progress.add_task("odometry " + " | ".join(variants), total=n)
+        return run_compare((dataset[i] for i in range(n)), cfg, variants, on_frame=lambda _r: progress.advance(task))
+
+
+def print_variant_table(metrics: dict[str, Any], title: str) -> None:
+    from prc_slam.report import FIELDS, _fmt
+
+    variants = metrics["variants"]
+    fields = [f for f in FIELDS if any(f in m for m in variants.values())]
+    table = Table(title=title)
+    table.add_column("variant")
+    for f in fields:
+        table.add_column(f, justify="right")
+    for name, m in variants.items():
+        table.add_row(name, *(_fmt(m.get(f)) for f in fields))
+    Console().print(table)
+
+
+@app.command()
+def compare(
+    input: Path = typer.Argument(..., help="KITTI directory, simulated sequence, or Ouster .npz files"),
+    variants: str = typer.Option("raw,prc", help="comma-separated variants: raw, prc"),
+    out: Path = typer.Option(Path("out/compare"), help="output directory"),
+    preset: Preset = typer.Option(Preset.multibeam, help="PRC parameters for the prc variant"),
+    config: Path | None = typer.Option(None, help="YAML config (prc, filter, odometry sections)"),
+    fmt: str | None = typer.Option(None, "--format", help="input format (default: detected)"),
+    max_frames: int | None = typer.Option(None, help="use only the first N frames"),
+) -> None:
+    """Run odometry variants side by side in one process (same KISS-ICP settings) and write
+    report.md, metrics.json, trajectories (KITTI and TUM), the config used and plots."""
+    from data_tools import DataError
+    from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
+    from prc_slam.report import write_compare_outputs
+
+    names = [v.strip() for v in variants.split(",") if v.strip()]
+    try:
+        cfg = _run_config(preset, config)
+        result = _compare(input, names, cfg, fmt, max_frames)
+    except (DataError, ValueError) as exc:
+        raise _fail(str(exc)) from exc
+    metrics = write_compare_outputs(
+        result, cfg, out, f"Odometry comparison on {input}", write_kitti_poses, write_tum_poses
+    )
+    print_variant_table(metrics, f"odometry on {input}")
+    console.print(f"wrote {out}/report.md, metrics.json, trajectories and trajectories.png")
+
+
+@app.command()
+def odometry(
+    input: Path = typer.Argument(..., help="KITTI directory, simulated sequence, or Ouster .npz files"),
+    filter: FilterMode = typer.Option(FilterMode.prc, "--filter", help="none: every point; prc: PRC filter"),
+    preset: Preset = typer.Option(Preset.multibeam, help="PRC parameters"),
+    config: Path | None = typer.Option(None, help="YAML config (prc, filter, odometry sections)"),
+    poses_out: Path | None = typer.Option(None, help="write the trajectory here"),
+    pose_format: PoseFormat = typer.Option(PoseFormat.kitti, help="trajectory file format"),
+    json_path: Path | None = typer.Option(None, "--json", help="write the metrics JSON here"),
+    fmt: str | None = typer.Option(None, "--format", help="input format (default: detected)"),
+    max_frames: int | None = typer.Option(None, help="use only the first N frames"),
+) -> None:
+    """KISS-ICP odometry on every frame, on all points or on the PRC-filtered ones."""
+    from data_tools import DataError
+    from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
+
+    name = "raw" if filter is FilterMode.none else "prc"
+    try:
+        cfg = _run_config(preset, config)
+        result = _compare(input, [name], cfg, fmt, max_frames)
+    except (DataError, ValueError) as exc:
+        raise _fail(str(exc)) from exc
+    metrics = result.metrics()
+    if poses_out is not None:
+        poses = result.estimate_in_world(name)
+        if pose_format is PoseFormat.kitti:
+            write_kitti_poses(poses_out, poses)
+        else:
+            write_tum_poses(poses_out, result.times, poses)
+        console.print(f"wrote {poses_out}")
+    print_variant_table(metrics, f"odometry on {input}")
+    if json_path is not None:
+        _write_json(json_path, metrics, cfg)
+
+
 class SceneKind(str, Enum):
     urban = "urban"
     forest = "forest"
@@ -245,30 +350,39 @@ def bench(
 @app.command()
 def demo(
     out: Path = typer.Option(Path("out/demo"), help="output directory"),
-    frames: int = typer.Option(60, min=1, help="frames of the simulated hdl64 urban drive"),
+    frames: int = typer.Option(150, min=2, help="frames of the simulated hdl64 urban drive"),
     seed: int = typer.Option(0, help="scene and noise seed"),
 ) -> None:
-    """Simulate an urban drive (cached after the first run) and classify it with PRC, scored
-    against the simulator's ground truth."""
+    """Simulate an urban drive (cached after the first run), score PRC against its ground truth,
+    and compare raw vs PRC-filtered KISS-ICP odometry (report, metrics, trajectories, plots)."""
     from data_tools.sim.dataset import SimSequence, write_sequence
     from data_tools.sim.simulator import NoiseConfig, SimConfig, Simulator
+    from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
     from prc_slam.classify_run import run_classification
+    from prc_slam.odometry.compare import run_compare
+    from prc_slam.report import write_compare_outputs
 
     sim_cfg = SimConfig(scene="urban", sensor="hdl64", frames=frames, seed=seed, noise=NoiseConfig(outlier_rate=0.01))
     root = out / f"sim_urban_hdl64_{frames}_seed{seed}"
     cached = (root / "sim.json").is_file() and SimSequence(root).config == sim_cfg
+    cfg = Config(prc=PRCConfig.preset("multibeam"))
     with _progress() as progress:
         if not cached:
             task = progress.add_task("simulating the urban drive", total=frames)
             write_sequence(Simulator(sim_cfg), root, on_frame=lambda _f: progress.advance(task))
         seq = SimSequence(root)
-        cfg = PRCConfig.preset("multibeam")
         task = progress.add_task("PRC", total=len(seq))
-        metrics = run_classification(iter(seq), cfg, on_frame=lambda _f: progress.advance(task))
-    metrics["input"] = str(root)
+        prc_metrics = run_classification(iter(seq), cfg.prc, on_frame=lambda _f: progress.advance(task))
+        task = progress.add_task("odometry raw | prc", total=len(seq))
+        result = run_compare(iter(seq), cfg, on_frame=lambda _r: progress.advance(task))
     console.print(f"simulated drive: {root}" + (" (cached)" if cached else ""))
-    _report(metrics, "PRC (multibeam setting) on the simulated urban drive, 1 % outliers")
-    _write_json(out / "metrics.json", metrics, Config(prc=cfg))
+    _report(prc_metrics, "PRC (multibeam setting) on the simulated urban drive, 1 % outliers")
+    _write_json(out / "prc_metrics.json", prc_metrics)
+    metrics = write_compare_outputs(
+        result, cfg, out, f"Raw vs PRC-filtered KISS-ICP on {root.name}", write_kitti_poses, write_tum_poses
+    )
+    print_variant_table(metrics, "KISS-ICP: raw vs PRC-filtered")
+    console.print(f"report: {out / 'report.md'}  plots: {out / 'trajectories.png'}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -12,6 +12,9 @@ from typing import Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
+from prc_slam.filtering import FilterConfig
+from prc_slam.odometry.kiss import OdometryConfig
+
 
 class PRCConfig(BaseModel):
     """Parameters of preregistration classification (Lehtola et al. 2019, Sec. II).
@@ -83,6 +86,8 @@ class Config(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     prc: PRCConfig = Field(default_factory=PRCConfig)
+    filter: FilterConfig = Field(default_factory=FilterConfig)
+    odometry: OdometryConfig = Field(default_factory=OdometryConfig)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Config:

@@ -58,8 +58,10 @@ def test_classify_reports_bad_input_cleanly(tmp_path):
 def test_demo_runs(tmp_path):
     res = runner.invoke(app, ["demo", "--frames", "3", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    m = json.loads((tmp_path / "metrics.json").read_text())
+    m = json.loads((tmp_path / "prc_metrics.json").read_text())
     assert m["frames"] == 3 and m["per_class"]["noise"]["recall"] > 0.8
+    odo = json.loads((tmp_path / "metrics.json").read_text())
+    assert set(odo["variants"]) == {"raw", "prc"} and (tmp_path / "report.md").is_file()
     again = runner.invoke(app, ["demo", "--frames", "3", "--out", str(tmp_path)])
     assert "(cached)" in again.output
 

@@ -114,15 +114,16 @@ def test_fused_kernel_equals_reference_kernels(r, xi_s, xi_p, wrap):
     c_adj, c_in = kernels.support_counts(r, xs, xp, 4, wrap)
     expected = (r > 0) & (c_in >= 3) & (c_adj >= 2)
     grad_ref = kernels.gradient_background(r, expected, 0.3, 0.05, False, wrap, True)
-    sup, grad = kernels.support_and_gradient(r, xs, xp, 4, 3, 2, 0.3, 0.05, False, wrap, True, True)
+    sup, grad, one_sided = kernels.support_and_gradient(r, xs, xp, 4, 3, 2, 0.3, 0.05, False, wrap, True, True)
     np.testing.assert_array_equal(sup, expected)
+    np.testing.assert_array_equal(one_sided, (r > 0) & ((c_in >= 3) != (c_adj >= 2)))
     np.testing.assert_array_equal(grad, grad_ref)
     # per-slot thresholds (adaptive mode): symmetric max(xi_i, xi_j) in both kernels
     rng = np.random.default_rng(int(r.size))
     xs2 = (xs * rng.uniform(0.5, 3.0, r.shape)).astype(np.float32)
     xp2 = (xp * rng.uniform(0.5, 3.0, r.shape)).astype(np.float32)
     c_adj, c_in = kernels.support_counts(r, xs2, xp2, 4, wrap)
-    sup2, _ = kernels.support_and_gradient(r, xs2, xp2, 4, 3, 2, 0.3, 0.05, False, wrap, True, False)
+    sup2, _, _ = kernels.support_and_gradient(r, xs2, xp2, 4, 3, 2, 0.3, 0.05, False, wrap, True, False)
     np.testing.assert_array_equal(sup2, (r > 0) & (c_in >= 3) & (c_adj >= 2))
 
 

@@ -46,6 +46,8 @@ class BlockResult:
         ``S_b`` of eq. (2).
     smooth : bool (rows, cols)
         Points of ``H_b \\ V_b`` (segments of at least ``A`` pixels).
+    one_sided : bool (rows, cols)
+        Noise points that meet one of the two conditions of eq. (4) (e.g. thin poles).
     row0 : int
         Index of the block's first row in the stream.
     """
@@ -54,6 +56,7 @@ class BlockResult:
     segments: np.ndarray
     supported: np.ndarray
     smooth: np.ndarray
+    one_sided: np.ndarray
     row0: int = 0
 
 
@@ -106,8 +109,8 @@ def support_counts_needed(config: PRCConfig) -> tuple[int, int]:
 
 def support_and_background(
     ranges: np.ndarray, config: PRCConfig, sensor: SensorModel | None, wrap: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """``S_b`` (eqs. 2-8) and ``G_b`` (eq. 9) of a block, as boolean images."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``S_b`` (eqs. 2-8), ``G_b`` (eq. 9) and the one-sided noise points of a block."""
     xi_s, xi_p = support_thresholds(ranges, config, sensor)
     need_in, need_adj = support_counts_needed(config)
     return kernels.support_and_gradient(
@@ -199,7 +202,7 @@ def prc_block(
     carry = state is not None
     state = state if state is not None else PRCState()
     # Step 2: support, eqs. (4)-(8); step 3b: background extension, eq. (9).
-    supported, grad = support_and_background(ranges, config, sensor, wrap)
+    supported, grad, one_sided = support_and_background(ranges, config, sensor, wrap)
 
     # Step 3: H_b.
     foreground = supported & ~grad
@@ -247,7 +250,9 @@ def prc_block(
 
     if carry:
         state.last_row = segments[-1].copy()
-    return BlockResult(labels=out, segments=segments, supported=supported, smooth=smooth, row0=row0)
+    return BlockResult(
+        labels=out, segments=segments, supported=supported, smooth=smooth, one_sided=one_sided, row0=row0
+    )
 
 
 def _ground_segment(ids: np.ndarray, areas: np.ndarray, state: PRCState | None) -> int:

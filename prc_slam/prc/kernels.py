@@ -83,10 +83,14 @@ def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, 
     Returns
     -------
     supported, grad : bool arrays, shape (rows, cols)
+    one_sided : bool array, shape (rows, cols)
+        Returns that meet exactly one of the two conditions of eq. (4) (thin poles meet the
+        adjacent-slice one only); not supported, so labelled noise, but not isolated.
     """
     R, C = ranges.shape
     sup = np.zeros((R, C), np.bool_)
     grad = np.zeros((R, C), np.bool_)
+    one_sided = np.zeros((R, C), np.bool_)
     for r in range(R):
         for c in range(C):
             ri = ranges[r, c]
@@ -110,8 +114,7 @@ def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, 
                         n_in += 1
                 if n_in >= need_in or n_in + left < need_in:
                     break
-            if n_in < need_in:
-                continue
+            in_ok = n_in >= need_in
             n_adj = 0
             for d in (0, -1, 1):
                 cc = c + d
@@ -129,7 +132,8 @@ def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, 
                         n_adj += 1
                 if n_adj >= need_adj:
                     break
-            if n_adj < need_adj:
+            if not in_ok or n_adj < need_adj:
+                one_sided[r, c] = in_ok or n_adj >= need_adj
                 continue
             sup[r, c] = True
             cm = c - 1
@@ -144,7 +148,7 @@ def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, 
                 grad[r, c] = True
             elif both_axes and r > 0 and r + 1 < R:
                 grad[r, c] = _gradient_break(ranges[r - 1, c], ri, ranges[r + 1, c], alpha, d_c, literal)
-    return sup, grad
+    return sup, grad, one_sided
 
 
 @njit(cache=True, nogil=True)

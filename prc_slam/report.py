@@ -1,0 +1,119 @@
+"""Outputs of ``prc-slam compare``: trajectories, metrics JSON, report.md and plots."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prc_slam import evaluation as E
+from prc_slam.config import Config
+from prc_slam.odometry.compare import CompareResult
+
+FIELDS = ("ate_rmse_m", "rpe_trans_m", "kitti_trans_pct", "ms_per_frame", "points_in", "points_to_icp", "frames")
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.4g}" if abs(v) < 1000 else f"{v:,.0f}"
+    return str(v)
+
+
+def markdown_report(result: CompareResult, metrics: dict[str, Any], title: str) -> str:
+    """The report: metrics table, per-stage timings, points per class."""
+    variants = metrics["variants"]
+    fields = [f for f in FIELDS if any(f in m for m in variants.values())]
+    lines = [f"# {title}", "", "| variant | " + " | ".join(fields) + " |", "|---" * (len(fields) + 1) + "|"]
+    for name, m in variants.items():
+        lines.append(f"| {name} | " + " | ".join(_fmt(m.get(f)) for f in fields) + " |")
+    base = variants.get("raw")
+    if base:
+        lines += ["", "Relative to `raw`:", ""]
+        for name, m in variants.items():
+            if name == "raw":
+                continue
+            parts = [f"time x{m['ms_per_frame'] / base['ms_per_frame']:.3f}"]
+            if "ate_rmse_m" in m and base.get("ate_rmse_m"):
+                parts.append(f"ATE x{m['ate_rmse_m'] / base['ate_rmse_m']:.3f}")
+            lines.append(f"- `{name}`: " + ", ".join(parts))
+    lines += [
+        "",
+        "## Milliseconds per frame, by stage",
+        "",
+        "| variant | " + " | ".join(("prc", "filter", "icp")) + " |",
+        "|---|---|---|---|",
+    ]
+    for name, m in variants.items():
+        st = m.get("ms_per_stage", {})
+        lines.append(f"| {name} | " + " | ".join(_fmt(st.get(k)) for k in ("prc", "filter", "icp")) + " |")
+    for name, m in variants.items():
+        if "points_in_per_class" in m:
+            lines += ["", f"## Points per class, `{name}` (all frames)", "", "| class | in | to ICP |", "|---|---|---|"]
+            for cls, n in m["points_in_per_class"].items():
+                lines.append(f"| {cls} | {n} | {m['points_kept_per_class'].get(cls, 0)} |")
+    if result.gt_poses is None:
+        lines += ["", "No ground truth: error fields omitted."]
+    return "\n".join(lines) + "\n"
+
+
+def plot_trajectories(result: CompareResult, path: Path) -> None:
+    """Top view of ground truth and every variant, and position error along the path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2 if result.gt_poses is not None else 1, figsize=(13, 5.5), squeeze=False)
+    ax = axes[0, 0]
+    if result.gt_poses is not None:
+        ax.plot(result.gt_poses[:, 0, 3], result.gt_poses[:, 1, 3], "k-", lw=2.5, label="ground truth")
+    for name in result.runs:
+        p = result.estimate_in_world(name)
+        ax.plot(p[:, 0, 3], p[:, 1, 3], lw=1.2, label=name)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title("top view")
+    ax.legend()
+    if result.gt_poses is not None:
+        ax = axes[0, 1]
+        gt = result.gt_poses
+        dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1))])
+        for name in result.runs:
+            est = result.estimate_in_world(name)
+            rot, t, _ = E.umeyama(est[:, :3, 3], gt[:, :3, 3])
+            err = np.linalg.norm(est[:, :3, 3] @ rot.T + t - gt[:, :3, 3], axis=1)
+            ax.plot(dist, err, label=name)
+        ax.set_xlabel("distance along the path (m)")
+        ax.set_ylabel("position error after alignment (m)")
+        ax.set_title("error along the path")
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_compare_outputs(
+    result: CompareResult, config: Config, out: Path, title: str, pose_writer, tum_writer
+) -> dict[str, Any]:
+    """Write trajectories, metrics.json, config.yaml, report.md and trajectories.png into ``out``.
+
+    ``pose_writer(path, poses)`` and ``tum_writer(path, times, poses)`` are injected (data_tools)."""
+    out.mkdir(parents=True, exist_ok=True)
+    metrics = result.metrics()
+    for name in result.runs:
+        poses = result.estimate_in_world(name)
+        pose_writer(out / f"{name}_poses_kitti.txt", poses)
+        tum_writer(out / f"{name}_poses_tum.txt", result.times, poses)
+    if result.gt_poses is not None:
+        pose_writer(out / "ground_truth_poses_kitti.txt", result.gt_poses)
+        tum_writer(out / "ground_truth_poses_tum.txt", result.times, result.gt_poses)
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    config.to_yaml(out / "config.yaml")
+    (out / "report.md").write_text(markdown_report(result, metrics, title))
+    plot_trajectories(result, out / "trajectories.png")
+    return metrics

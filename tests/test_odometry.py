@@ -1,0 +1,172 @@
+"""Filter policy, KISS-ICP adapter, variant comparison, trajectory regression (golden files)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from data_tools import open_dataset
+from data_tools.sim.dataset import write_sequence
+from data_tools.sim.simulator import NoiseConfig, SimConfig, Simulator
+from prc_slam import labels as L
+from prc_slam.cli import app
+from prc_slam.config import Config, PRCConfig
+from prc_slam.filtering import FilterConfig, filter_points
+from prc_slam.odometry.compare import run_compare
+from prc_slam.odometry.kiss import KissOdometry, OdometryConfig, kiss_config
+from prc_slam.testing import assert_trajectory_close
+
+pytest_plugins = ["pytester"]
+
+
+@pytest.fixture(scope="module")
+def short_drive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sim") / "urban"
+    write_sequence(Simulator(SimConfig(frames=30, seed=5, noise=NoiseConfig(outlier_rate=0.02))), root)
+    return open_dataset(root)
+
+
+def test_filter_drops_noise_thins_ground_keeps_the_rest():
+    pts = np.array([[0.1, 0.1, 0], [0.5, 0.5, 0], [1.5, 0.2, 0], [0.2, 0.3, 1], [5, 5, 5], [6, 6, 6]], float)
+    lab = np.array([L.GROUND, L.GROUND, L.GROUND, L.BUILDING, L.NOISE, L.NOISE], np.uint8)
+    res = filter_points(pts, lab, FilterConfig(cell=1.0))
+    assert res.keep.tolist() == [True, False, True, True, False, False]  # first ground point per 1 m cell
+    assert res.counts_in == {"ground": 3, "building": 1, "noise": 2}
+    assert res.counts_kept == {"ground": 2, "building": 1, "noise": 0}
+    spared = filter_points(pts, lab, FilterConfig(), one_sided=np.array([0, 0, 0, 0, 1, 0], bool))
+    assert spared.keep[4] and not spared.keep[5]
+    strict = filter_points(pts, lab, FilterConfig(keep_one_sided=False), one_sided=np.array([0, 0, 0, 0, 1, 0], bool))
+    assert not strict.keep[4]
+    with pytest.raises(ValueError, match="do not match"):
+        filter_points(pts, lab[:3], FilterConfig())
+
+
+def test_kiss_config_ignores_environment(monkeypatch):
+    monkeypatch.setenv("kiss_icp_data__max_range", "7")
+    monkeypatch.setenv("KISS_ICP_MAPPING__VOXEL_SIZE", "9")
+    cfg = kiss_config(OdometryConfig())
+    assert cfg.data.max_range == 100.0 and cfg.mapping.voxel_size == 1.0
+    import os
+
+    assert os.environ["kiss_icp_data__max_range"] == "7"  # restored
+
+
+def test_two_frame_known_motion_is_recovered(short_drive):
+    pts = short_drive[10].points().astype(np.float64)
+    c, s = np.cos(np.radians(2.0)), np.sin(np.radians(2.0))
+    motion = np.array([[c, -s, 0, 0.5], [s, c, 0, -0.1], [0, 0, 1, 0.02], [0, 0, 0, 1.0]])
+    moved = (pts - motion[:3, 3]) @ motion[:3, :3]  # the same scene seen from the moved sensor
+    odo = KissOdometry(OdometryConfig(deskew=False))
+    odo.register(pts)
+    pose = odo.register(moved)
+    assert np.linalg.norm(pose[:3, 3] - motion[:3, 3]) < 0.01
+    assert np.degrees(np.arccos(np.clip((np.trace(pose[:3, :3].T @ motion[:3, :3]) - 1) / 2, -1, 1))) < 0.05
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        odo.register(np.zeros((4, 2)))
+
+
+def test_compare_metrics_schema_and_no_ground_truth(short_drive):
+    scans = [short_drive[i] for i in range(8)]
+    res = run_compare(scans, Config(prc=PRCConfig.preset("multibeam")))
+    m = res.metrics()["variants"]
+    for name in ("raw", "prc"):
+        assert {
+            "ate_rmse_m",
+            "rpe_trans_m",
+            "kitti_trans_pct",
+            "ms_per_frame",
+            "points_in",
+            "points_to_icp",
+            "frames",
+        } <= set(m[name])
+    assert m["prc"]["points_to_icp"] < m["raw"]["points_to_icp"] == m["raw"]["points_in"]
+    assert m["prc"]["points_kept_per_class"]["ground"] < m["prc"]["points_in_per_class"]["ground"]
+    for s in scans:
+        s.gt_pose = None
+    m2 = run_compare(scans, Config(), ["raw"]).metrics()["variants"]["raw"]
+    assert "ate_rmse_m" not in m2 and m2["frames"] == 8
+    with pytest.raises(ValueError, match="unknown variants"):
+        run_compare(scans, Config(), ["magic"])
+
+
+@pytest.mark.parametrize("variant", ["raw", "prc"])
+def test_golden_urban_drive(short_drive, trajectory_regression, variant):
+    res = run_compare(iter(short_drive), Config(prc=PRCConfig.preset("multibeam")), [variant])
+    est = res.estimate_in_world(variant)
+    assert_trajectory_close(est, short_drive.poses, ate_tol=0.3, rpe_tol=0.3)  # follows the ground truth
+    trajectory_regression.check(est, ate_tol=0.02, rpe_tol=0.02)  # and has not changed
+
+
+def test_assert_trajectory_close_message():
+    ref = np.tile(np.eye(4), (20, 1, 1))
+    ref[:, 0, 3] = np.arange(20)
+    est = ref.copy()
+    est[12:, 1, 3] += 0.5
+    with pytest.raises(AssertionError) as err:
+        assert_trajectory_close(est, ref, ate_tol=0.05, rpe_tol=0.1)
+    text = str(err.value)
+    assert "ATE RMSE" in text and "frames 11 and 12" in text and "first frame over tolerance" in text
+    assert_trajectory_close(est, ref, ate_tol=1.0, rpe_tol=1.0)
+    with pytest.raises(AssertionError, match="lengths differ"):
+        assert_trajectory_close(est[:5], ref, 1, 1)
+
+
+def test_plugin_update_golden_cycle(pytester):
+    pytester.makepyfile(
+        """
+        import numpy as np
+
+        def test_walk(trajectory_regression):
+            poses = np.tile(np.eye(4), (5, 1, 1))
+            poses[:, 0, 3] = np.arange(5) * 1.0
+            trajectory_regression.check(poses, ate_tol=0.01, rpe_tol=0.01)
+        """
+    )
+    first = pytester.runpytest()
+    first.assert_outcomes(failed=1)
+    assert "--update-golden" in first.stdout.str()
+    pytester.runpytest("--update-golden").assert_outcomes(passed=1)
+    assert (pytester.path / "golden" / "test_walk.txt").is_file()
+    pytester.runpytest().assert_outcomes(passed=1)
+
+
+def test_cli_compare_and_odometry(short_drive, tmp_path):
+    runner = CliRunner()
+    root = str(short_drive.root)
+    res = runner.invoke(app, ["compare", root, "--out", str(tmp_path / "cmp"), "--max-frames", "10"])
+    assert res.exit_code == 0, res.output
+    for f in (
+        "report.md",
+        "metrics.json",
+        "config.yaml",
+        "trajectories.png",
+        "raw_poses_kitti.txt",
+        "prc_poses_tum.txt",
+        "ground_truth_poses_kitti.txt",
+    ):
+        assert (tmp_path / "cmp" / f).is_file(), f
+    m = json.loads((tmp_path / "cmp" / "metrics.json").read_text())
+    assert set(m["variants"]) == {"raw", "prc"}
+    res = runner.invoke(
+        app,
+        [
+            "odometry",
+            root,
+            "--filter",
+            "none",
+            "--max-frames",
+            "5",
+            "--poses-out",
+            str(tmp_path / "p.txt"),
+            "--pose-format",
+            "tum",
+            "--json",
+            str(tmp_path / "o.json"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    assert len(np.loadtxt(tmp_path / "p.txt")) == 5
+    assert list(json.loads((tmp_path / "o.json").read_text())["variants"]) == ["raw"]
