@@ -100,6 +100,56 @@ def bench_sim(frames: int = 10) -> dict[str, Any]:
     }
 
 
+def bench_viz(frames: int = 40, rounds: int = 2) -> dict[str, Any]:
+    """Rerun logging overhead with default settings: the raw-vs-prc comparison on a simulated
+    hdl64 drive with and without a sink writing an .rrd, alternated ``rounds`` times."""
+    import tempfile
+
+    from data_tools.sim.simulator import SimConfig, Simulator
+    from prc_slam.config import Config
+    from prc_slam.odometry.compare import run_compare
+    from prc_slam.scan import Scan
+    from prc_slam.viz.sink import RerunSink, VizConfig, open_recording
+
+    sim = Simulator(SimConfig(scene="urban", sensor="hdl64", frames=frames))
+    scans = []
+    for i in range(frames):
+        f = sim.frame(i)
+        scans.append(
+            Scan(
+                f.ranges,
+                sim.sensor.model,
+                name=f"{i:06d}",
+                timestamps=f.slot_times,
+                gt_pose=f.pose,
+                meta={"frame_time": f.time},
+            )
+        )
+    cfg = Config(prc=PRCConfig.preset("multibeam"))
+    plain, logged, size = [], [], 0
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(rounds):
+            t0 = time.perf_counter()
+            run_compare(iter(scans), cfg)
+            plain.append(time.perf_counter() - t0)
+            rec, _ = open_recording(rrd=f"{tmp}/b{r}.rrd")
+            log = RerunSink(rec, VizConfig()).log_record
+            t0 = time.perf_counter()
+            run_compare(iter(scans), cfg, on_frame=lambda r_, log=log: log(r_, gt_pose=r_.frame.scan.gt_pose))
+            rec.flush()
+            logged.append(time.perf_counter() - t0)
+            rec.disconnect()
+            size = Path(f"{tmp}/b{r}.rrd").stat().st_size
+    overhead = (min(logged) - min(plain)) / min(plain)
+    return {
+        "overhead_fraction": overhead,
+        "ms_per_frame_plain": min(plain) / frames * 1e3,
+        "ms_per_frame_logged": min(logged) / frames * 1e3,
+        "rrd_bytes_per_frame": size / frames,
+        "rrd_gb_per_1000_frames": size / frames * 1000 / 1e9,
+    }
+
+
 def run_bench(kitti_dir: Path | None = None) -> dict[str, Any]:
     """All sections implemented so far."""
-    return {"prc": bench_prc(kitti_dir), "sim": bench_sim()}
+    return {"prc": bench_prc(kitti_dir), "sim": bench_sim(), "viz": bench_viz()}

@@ -62,6 +62,38 @@ def _json_default(value: object) -> object:
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
+class Viewer:
+    """Options shared by long-running commands: where the Rerun recording goes."""
+
+    def __init__(self, rrd: Path | None, connect: str | None, serve_web: bool, every: int, spawn: bool = False):
+        self.sink = None
+        if rrd is None and connect is None and not serve_web and not spawn:
+            return
+        from prc_slam.viz.sink import RerunSink, VizConfig, open_recording
+
+        if rrd is not None:
+            rrd.parent.mkdir(parents=True, exist_ok=True)
+        rec, address = open_recording(
+            rrd=None if rrd is None else str(rrd), connect=connect, serve_web=serve_web, spawn=spawn
+        )
+        self.sink = RerunSink(rec, VizConfig(every=every))
+        self.rrd = rrd
+        if address:
+            console.print(f"web viewer: {address}")
+
+    def close(self) -> None:
+        if self.sink is not None:
+            self.sink.rec.flush()
+            if self.rrd is not None:
+                console.print(f"wrote {self.rrd} (open it with: .venv/bin/rerun {self.rrd})")
+
+
+RRD_OPT = typer.Option(None, "--rrd", help="write a Rerun recording (.rrd) here")
+CONNECT_OPT = typer.Option(None, "--connect", help="stream to a running Rerun viewer (rerun+http://host:9876/proxy)")
+SERVE_OPT = typer.Option(False, "--serve-web", help="serve the Rerun web viewer on localhost and print its address")
+EVERY_OPT = typer.Option(5, "--log-every", min=1, help="log clouds and images on every n-th frame")
+
+
 def _prc_config(mode: Mode, preset: Preset, adaptive: bool | None, config_path: Path | None) -> PRCConfig:
     if config_path is not None:
         cfg = Config.from_yaml(config_path).prc
@@ -104,6 +136,10 @@ def classify(
     labels_out: Path | None = typer.Option(None, help="write NNNNNN.label per frame here"),
     las: Path | None = typer.Option(None, help="write the classified points as LAS 1.4"),
     json_path: Path | None = typer.Option(None, "--json", help="write the metrics JSON here"),
+    rrd: Path | None = RRD_OPT,
+    connect: str | None = CONNECT_OPT,
+    serve_web: bool = SERVE_OPT,
+    log_every: int = EVERY_OPT,
 ) -> None:
     """Classify every frame with PRC; score against ground truth when the input has it."""
     from data_tools import DataError, open_dataset
@@ -117,12 +153,18 @@ def classify(
         raise _fail(str(exc)) from exc
     n = len(dataset) if max_frames is None else min(max_frames, len(dataset))
     las_parts: list[tuple[np.ndarray, np.ndarray, int]] = []
+    viewer = Viewer(rrd, connect, serve_web, log_every)
+
+    done = [0]
 
     with _progress() as progress:
         task = progress.add_task("PRC", total=n)
 
         def on_frame(frame) -> None:
             progress.advance(task)
+            if viewer.sink is not None:
+                viewer.sink.log_classified(done[0], frame.scan, frame.labels)
+            done[0] += 1
             if las is not None:
                 xyz = frame.scan.points()
                 if frame.scan.gt_pose is not None:
@@ -139,6 +181,7 @@ def classify(
             )
         except (DataError, ValueError) as exc:
             raise _fail(str(exc)) from exc
+    viewer.close()
     metrics["input"] = str(input)
     metrics["config"] = cfg.model_dump(mode="json")
     if las is not None and las_parts:
@@ -184,15 +227,27 @@ def _run_config(preset: Preset, config_path: Path | None) -> Config:
     return Config(prc=PRCConfig.preset("multibeam" if preset is Preset.multibeam else "urban"))
 
 
-def _compare(input: Path, variants: list[str], cfg: Config, fmt: str | None, max_frames: int | None):
+def _compare(
+    input: Path, variants: list[str], cfg: Config, fmt: str | None, max_frames: int | None, viewer: Viewer | None = None
+):
     from data_tools import open_dataset
     from prc_slam.odometry.compare import run_compare
 
     dataset = open_dataset(input, fmt)
     n = len(dataset) if max_frames is None else min(max_frames, len(dataset))
+    sink = viewer.sink if viewer is not None else None
     with _progress() as progress:
         task = progress.add_task("odometry " + " | ".join(variants), total=n)
-        return run_compare((dataset[i] for i in range(n)), cfg, variants, on_frame=lambda _r: progress.advance(task))
+
+        def on_frame(record) -> None:
+            progress.advance(task)
+            if sink is not None:
+                sink.log_record(record, gt_pose=record.frame.scan.gt_pose)
+
+        result = run_compare((dataset[i] for i in range(n)), cfg, variants, on_frame=on_frame)
+    if viewer is not None:
+        viewer.close()
+    return result
 
 
 def print_variant_table(metrics: dict[str, Any], title: str) -> None:
@@ -218,6 +273,10 @@ def compare(
     config: Path | None = typer.Option(None, help="YAML config (prc, filter, odometry sections)"),
     fmt: str | None = typer.Option(None, "--format", help="input format (default: detected)"),
     max_frames: int | None = typer.Option(None, help="use only the first N frames"),
+    rrd: Path | None = RRD_OPT,
+    connect: str | None = CONNECT_OPT,
+    serve_web: bool = SERVE_OPT,
+    log_every: int = EVERY_OPT,
 ) -> None:
     """Run odometry variants side by side in one process (same KISS-ICP settings) and write
     report.md, metrics.json, trajectories (KITTI and TUM), the config used and plots."""
@@ -228,7 +287,7 @@ def compare(
     names = [v.strip() for v in variants.split(",") if v.strip()]
     try:
         cfg = _run_config(preset, config)
-        result = _compare(input, names, cfg, fmt, max_frames)
+        result = _compare(input, names, cfg, fmt, max_frames, Viewer(rrd, connect, serve_web, log_every))
     except (DataError, ValueError) as exc:
         raise _fail(str(exc)) from exc
     metrics = write_compare_outputs(
@@ -249,6 +308,10 @@ def odometry(
     json_path: Path | None = typer.Option(None, "--json", help="write the metrics JSON here"),
     fmt: str | None = typer.Option(None, "--format", help="input format (default: detected)"),
     max_frames: int | None = typer.Option(None, help="use only the first N frames"),
+    rrd: Path | None = RRD_OPT,
+    connect: str | None = CONNECT_OPT,
+    serve_web: bool = SERVE_OPT,
+    log_every: int = EVERY_OPT,
 ) -> None:
     """KISS-ICP odometry on every frame, on all points or on the PRC-filtered ones."""
     from data_tools import DataError
@@ -257,7 +320,7 @@ def odometry(
     name = "raw" if filter is FilterMode.none else "prc"
     try:
         cfg = _run_config(preset, config)
-        result = _compare(input, [name], cfg, fmt, max_frames)
+        result = _compare(input, [name], cfg, fmt, max_frames, Viewer(rrd, connect, serve_web, log_every))
     except (DataError, ValueError) as exc:
         raise _fail(str(exc)) from exc
     metrics = result.metrics()
@@ -271,6 +334,17 @@ def odometry(
     print_variant_table(metrics, f"odometry on {input}")
     if json_path is not None:
         _write_json(json_path, metrics, cfg)
+
+
+@app.command()
+def view(
+    input: Path = typer.Argument(..., help="KITTI directory, simulated sequence, or Ouster .npz files"),
+    max_frames: int | None = typer.Option(None, help="use only the first N frames"),
+    log_every: int = typer.Option(1, "--log-every", min=1, help="log clouds and images on every n-th frame"),
+) -> None:
+    """Spawn the Rerun desktop viewer and watch PRC and raw vs PRC-filtered odometry live."""
+    cfg = Config(prc=PRCConfig.preset("multibeam"))
+    _compare(input, ["raw", "prc"], cfg, None, max_frames, Viewer(None, None, False, log_every, spawn=True))
 
 
 class SceneKind(str, Enum):
@@ -374,7 +448,15 @@ def demo(
         task = progress.add_task("PRC", total=len(seq))
         prc_metrics = run_classification(iter(seq), cfg.prc, on_frame=lambda _f: progress.advance(task))
         task = progress.add_task("odometry raw | prc", total=len(seq))
-        result = run_compare(iter(seq), cfg, on_frame=lambda _r: progress.advance(task))
+        rrd = out.with_suffix(".rrd")
+        viewer = Viewer(rrd, None, False, 5)
+
+        def on_frame(record) -> None:
+            progress.advance(task)
+            viewer.sink.log_record(record, gt_pose=record.frame.scan.gt_pose)
+
+        result = run_compare(iter(seq), cfg, on_frame=on_frame)
+        viewer.close()
     console.print(f"simulated drive: {root}" + (" (cached)" if cached else ""))
     _report(prc_metrics, "PRC (multibeam setting) on the simulated urban drive, 1 % outliers")
     _write_json(out / "prc_metrics.json", prc_metrics)

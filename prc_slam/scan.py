@@ -9,6 +9,7 @@ on Scans and learns about the sensor only through its ``SensorModel``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -58,12 +59,17 @@ class SensorModel:
         """
         raise NotImplementedError
 
+    @cached_property
+    def unit_rays(self) -> np.ndarray:
+        """:meth:`directions` computed once (the model is immutable), ``float32[rows, cols, 3]``."""
+        return self.directions().astype(np.float32)
+
     def to_xyz(self, ranges: np.ndarray) -> np.ndarray:
         """Slot coordinates in the sensor frame, ``float32[rows, cols, 3]`` (zeros for no return)."""
-        ranges = np.asarray(ranges, dtype=np.float64)
+        ranges = np.asarray(ranges, dtype=np.float32)
         if ranges.shape != (self.rows, self.cols):
             raise ScanError(f"ranges shape {ranges.shape} does not match sensor {(self.rows, self.cols)}")
-        return (self.directions() * ranges[..., None]).astype(np.float32)
+        return self.unit_rays * ranges[..., None]
 
     def describe(self) -> dict[str, Any]:
         """JSON-serialisable description (kind and parameters)."""

@@ -52,7 +52,12 @@ class FrameRecord:
     frame: ClassifiedFrame
     index: int
     kept: dict[str, np.ndarray]  # variant -> mask of the points given to ICP
-    poses: dict[str, np.ndarray]  # variant -> pose of this frame
+    poses: dict[str, np.ndarray]  # variant -> pose of this frame (first frame = identity)
+    runs: dict[str, VariantRun]  # the runs so far (stage times, counts, odometry state)
+
+    def ms(self, variant: str) -> dict[str, float]:
+        """This frame's milliseconds per stage of ``variant``."""
+        return {k: v[-1] for k, v in self.runs[variant].ms.items() if v}
 
 
 @dataclass
@@ -138,6 +143,6 @@ def run_compare(
         times.append(scan.meta.get("frame_time", float(i)))
         names.append(scan.name)
         if on_frame is not None:
-            on_frame(FrameRecord(frame, i, kept, poses))
+            on_frame(FrameRecord(frame, i, kept, poses, runs))
     gt_poses = np.array(gt) if gt and all(g is not None for g in gt) else None
     return CompareResult(runs, gt_poses, np.asarray(times, dtype=float), names)

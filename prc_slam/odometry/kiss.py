@@ -105,6 +105,10 @@ class KissOdometry:
         self.poses.append(pose)
         return pose
 
+    def local_map_points(self) -> np.ndarray:
+        """Points of KISS-ICP's voxel map (world frame = first frame), ``float64[M, 3]``."""
+        return np.asarray(self.kiss.local_map.point_cloud())
+
     @property
     def threshold(self) -> float:
         """KISS-ICP's current adaptive correspondence threshold (sigma)."""

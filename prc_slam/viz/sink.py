@@ -1,0 +1,215 @@
+"""The Rerun sink: every stage of a run, on a ``frame`` sequence timeline and a ``sensor_time``
+timeline.
+
+Entity paths::
+
+    world                         ViewCoordinates (right-handed, z up), static
+    world/sensor                  Transform3D: estimated sensor pose
+    world/sensor/raw              Points3D, every input point, class ids = PRC labels
+    world/sensor/filtered         Points3D, what KISS-ICP got
+    world/map                     Points3D, KISS-ICP's local map (thinned)
+    world/trajectory/estimate     LineStrips3D, estimated positions so far (main variant)
+    world/trajectory/ground_truth LineStrips3D, when known
+    world/trajectory/variants/V   LineStrips3D, one strip per variant in comparisons
+    range_image/range             DepthImage (metres)
+    range_image/prc               SegmentationImage of PRC labels
+    metrics/...                   Scalars: points in / kept per class, ms per stage, ICP threshold, error
+    logs                          TextLog: warnings and skips
+
+One AnnotationContext (the label codes, names and colours of ``prc_slam.labels``) at the root
+and a default blueprint (3-D view, range images, time series, text log).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from prc_slam import labels as L
+
+
+@dataclass
+class VizConfig:
+    """What to log and how often.
+
+    Attributes
+    ----------
+    every : int
+        Log clouds and images on every ``every``-th frame (poses, trajectories and metrics on
+        every frame). The default keeps a 1000-frame hdl64 recording under 1 GB.
+    map_every : int
+        Log the local map on every ``map_every``-th frame.
+    map_voxel : float
+        Thin the logged map to one point per voxel of this size (m).
+    """
+
+    every: int = 5
+    map_every: int = 20
+    map_voxel: float = 0.5
+    main_variant: str = "prc"
+    variants: list[str] = field(default_factory=list)
+
+
+def annotation_context() -> rr.AnnotationContext:
+    """Label codes, names and colours of DESIGN.md."""
+    return rr.AnnotationContext([rr.AnnotationInfo(id=i.code, label=i.name, color=i.color) for i in L.LABELS])
+
+
+def default_blueprint() -> rrb.Blueprint:
+    """3-D view beside the range images, time series and the text log."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(name="world", origin="world"),
+            rrb.Vertical(
+                rrb.Spatial2DView(name="range", origin="range_image/range"),
+                rrb.Spatial2DView(name="PRC labels", origin="range_image", contents=["range_image/prc"]),
+                rrb.TimeSeriesView(name="metrics", origin="metrics"),
+                rrb.TextLogView(name="log", origin="logs"),
+                row_shares=[1, 1, 2, 1],
+            ),
+            column_shares=[3, 2],
+        ),
+        collapse_panels=True,
+    )
+
+
+def _thin(points: np.ndarray, voxel: float) -> np.ndarray:
+    if len(points) == 0 or voxel <= 0:
+        return points
+    v = np.floor(points / voxel).astype(np.int64) & 0x1FFFFF  # 21 bits per axis
+    keys = (v[:, 0] << 42) | (v[:, 1] << 21) | v[:, 2]
+    _, first = np.unique(keys, return_index=True)
+    return points[np.sort(first)]
+
+
+class RerunSink:
+    """Receives the pipeline's per-frame records and logs them.
+
+    Parameters
+    ----------
+    recording : rr.RecordingStream
+        Where to log (a file, a viewer, a web viewer; see :func:`open_recording`).
+    config : VizConfig
+    """
+
+    def __init__(self, recording: rr.RecordingStream, config: VizConfig | None = None) -> None:
+        self.rec = recording
+        self.config = config or VizConfig()
+        self._positions: dict[str, list[np.ndarray]] = {}
+        self._gt: list[np.ndarray] = []
+        self.rec.log("/", annotation_context(), static=True)
+        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+
+    def warn(self, message: str) -> None:
+        """A warning or a skip in the text log."""
+        self.rec.log("logs", rr.TextLog(message, level=rr.TextLogLevel.WARN))
+
+    def _time(self, index: int, t: float) -> None:
+        self.rec.set_time("frame", sequence=index)
+        self.rec.set_time("sensor_time", duration=float(t))
+
+    def log_classified(self, index: int, scan, labels: np.ndarray, t: float | None = None) -> None:
+        """A scan with its PRC labels (slots): raw cloud and range images."""
+        self._time(index, t if t is not None else scan.meta.get("frame_time", float(index)))
+        if index % self.config.every:
+            return
+        pts = scan.points()
+        ids = scan.per_point(labels).astype(np.uint16)
+        self.rec.log("world/sensor/raw", rr.Points3D(pts, class_ids=ids, radii=0.03))
+        self.rec.log("range_image/range", rr.DepthImage(scan.ranges, meter=1.0))
+        self.rec.log("range_image/prc", rr.SegmentationImage(labels))
+
+    def log_record(self, record, gt_pose: np.ndarray | None = None) -> None:
+        """One frame of an odometry comparison (:class:`prc_slam.odometry.compare.FrameRecord`).
+
+        Every frame: the sensor pose, stage timings, ICP thresholds and the position error.
+        Every ``config.every``-th frame: clouds, range images, trajectories and class counts.
+        """
+        frame = record.frame
+        scan = frame.scan
+        i = record.index
+        full = i % self.config.every == 0
+        main = self.config.main_variant if self.config.main_variant in record.poses else next(iter(record.poses))
+        labels = frame.labels if frame.labels is not None else np.full(scan.shape, L.UNCLASSIFIED, np.uint8)
+        self.log_classified(i, scan, labels)
+        if gt_pose is not None:
+            if not self._gt:
+                self._first_gt = gt_pose
+            self._gt.append(gt_pose[:3, 3])
+        world_from_first = self._first_gt if self._gt else np.eye(4)
+        for name, pose in record.poses.items():
+            p = world_from_first @ pose
+            self._positions.setdefault(name, []).append(p[:3, 3])
+            if name == main:
+                self.rec.log("world/sensor", rr.Transform3D(translation=p[:3, 3], mat3x3=p[:3, :3]))
+                if gt_pose is not None:
+                    err = float(np.linalg.norm(p[:3, 3] - gt_pose[:3, 3]))
+                    self.rec.log("metrics/error/position_m", rr.Scalars(err))
+            for stage, ms in record.ms(name).items():
+                self.rec.log(f"metrics/ms/{name}/{stage}", rr.Scalars(ms))
+            self.rec.log(f"metrics/icp_threshold/{name}", rr.Scalars(record.runs[name].odometry.threshold))
+        if full:
+            self._log_trajectories(main)
+            self._log_clouds(record, main, world_from_first)
+
+    def _log_trajectories(self, main: str) -> None:
+        if self._gt:
+            self.rec.log("world/trajectory/ground_truth", rr.LineStrips3D([np.array(self._gt)], colors=[(0, 0, 0)]))
+        for name, positions in self._positions.items():
+            strip = rr.LineStrips3D([np.array(positions)])
+            self.rec.log(f"world/trajectory/variants/{name}", strip)
+            if name == main:
+                self.rec.log("world/trajectory/estimate", strip)
+
+    def _log_clouds(self, record, main: str, world_from_first: np.ndarray) -> None:
+        frame = record.frame
+        scan = frame.scan
+        kept = record.kept[main]
+        codes = frame.point_labels() if frame.labels is not None else None
+        ids = None if codes is None else codes[kept].astype(np.uint16)
+        self.rec.log("world/sensor/filtered", rr.Points3D(scan.points()[kept], class_ids=ids, radii=0.04))
+        if record.index % self.config.map_every == 0:
+            world_map = _thin(record.runs[main].odometry.local_map_points(), self.config.map_voxel)
+            world_map = world_map @ world_from_first[:3, :3].T + world_from_first[:3, 3]
+            self.rec.log("world/map", rr.Points3D(world_map, colors=[(150, 150, 150)], radii=0.05))
+        for name in record.poses:
+            self.rec.log(f"metrics/points_to_icp/{name}", rr.Scalars(float(record.kept[name].sum())))
+        if codes is not None:
+            n_in = np.bincount(codes, minlength=256)
+            n_kept = np.bincount(codes[kept], minlength=256)
+            for c in np.flatnonzero(n_in):
+                name = L.CODE_TO_NAME.get(int(c), f"code_{c}")
+                self.rec.log(f"metrics/points/{name}/in", rr.Scalars(float(n_in[c])))
+                self.rec.log(f"metrics/points/{name}/kept", rr.Scalars(float(n_kept[c])))
+
+
+def open_recording(
+    application: str = "prc_slam",
+    *,
+    rrd: str | None = None,
+    connect: str | None = None,
+    serve_web: bool = False,
+    spawn: bool = False,
+    web_port: int | None = None,
+    grpc_port: int | None = None,
+) -> tuple[rr.RecordingStream, str | None]:
+    """A recording stream writing to a file, a running viewer, a served web viewer, or a spawned
+    desktop viewer. Returns the stream and, for ``serve_web``, the viewer's address."""
+    rec = rr.RecordingStream(application)
+    address = None
+    if rrd is not None:
+        rec.save(rrd, default_blueprint=default_blueprint())
+    elif connect is not None:
+        rec.connect_grpc(connect, default_blueprint=default_blueprint())
+    elif serve_web:
+        grpc_url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=default_blueprint())
+        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=grpc_url)
+        address = f"http://localhost:{web_port or 9090}/?url={grpc_url}"
+    elif spawn:
+        rec.spawn(default_blueprint=default_blueprint())
+    else:
+        raise ValueError("choose one of rrd, connect, serve_web or spawn")
+    return rec, address
