@@ -65,8 +65,17 @@ def _json_default(value: object) -> object:
 class Viewer:
     """Options shared by long-running commands: where the Rerun recording goes."""
 
-    def __init__(self, rrd: Path | None, connect: str | None, serve_web: bool, every: int, spawn: bool = False):
+    def __init__(
+        self,
+        rrd: Path | None,
+        connect: str | None,
+        serve_web: bool,
+        every: int,
+        spawn: bool = False,
+        serve_seconds: float | None = None,
+    ):
         self.sink = None
+        self.serve_web, self.serve_seconds = serve_web, serve_seconds
         if rrd is None and connect is None and not serve_web and not spawn:
             return
         from prc_slam.viz.sink import RerunSink, VizConfig, open_recording
@@ -82,16 +91,29 @@ class Viewer:
             console.print(f"web viewer: {address}")
 
     def close(self) -> None:
-        if self.sink is not None:
-            self.sink.rec.flush()
-            if self.rrd is not None:
-                console.print(f"wrote {self.rrd} (open it with: .venv/bin/rerun {self.rrd})")
+        if self.sink is None:
+            return
+        self.sink.rec.flush()
+        if self.rrd is not None:
+            console.print(f"wrote {self.rrd} (open it with: .venv/bin/rerun {self.rrd})")
+        if self.serve_web:
+            import time
+
+            limit = "" if self.serve_seconds is None else f" for {self.serve_seconds:g} s"
+            console.print(f"run finished; still serving the web viewer{limit} (Ctrl-C to stop)")
+            deadline = None if self.serve_seconds is None else time.monotonic() + self.serve_seconds
+            try:
+                while deadline is None or time.monotonic() < deadline:
+                    time.sleep(0.2)
+            except KeyboardInterrupt:
+                pass
 
 
 RRD_OPT = typer.Option(None, "--rrd", help="write a Rerun recording (.rrd) here")
 CONNECT_OPT = typer.Option(None, "--connect", help="stream to a running Rerun viewer (rerun+http://host:9876/proxy)")
 SERVE_OPT = typer.Option(False, "--serve-web", help="serve the Rerun web viewer on localhost and print its address")
 EVERY_OPT = typer.Option(5, "--log-every", min=1, help="log clouds and images on every n-th frame")
+SERVE_SECONDS_OPT = typer.Option(None, "--serve-seconds", help="with --serve-web: stop serving after this long")
 
 
 def _prc_config(mode: Mode, preset: Preset, adaptive: bool | None, config_path: Path | None) -> PRCConfig:
@@ -277,6 +299,7 @@ def compare(
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
     log_every: int = EVERY_OPT,
+    serve_seconds: float | None = SERVE_SECONDS_OPT,
 ) -> None:
     """Run odometry variants side by side in one process (same KISS-ICP settings) and write
     report.md, metrics.json, trajectories (KITTI and TUM), the config used and plots."""
@@ -287,7 +310,8 @@ def compare(
     names = [v.strip() for v in variants.split(",") if v.strip()]
     try:
         cfg = _run_config(preset, config)
-        result = _compare(input, names, cfg, fmt, max_frames, Viewer(rrd, connect, serve_web, log_every))
+        viewer = Viewer(rrd, connect, serve_web, log_every, serve_seconds=serve_seconds)
+        result = _compare(input, names, cfg, fmt, max_frames, viewer)
     except (DataError, ValueError) as exc:
         raise _fail(str(exc)) from exc
     metrics = write_compare_outputs(

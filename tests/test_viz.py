@@ -117,3 +117,97 @@ def test_rerun_verifies_the_file(recorded):
     res = subprocess.run([str(cli), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert "verified without error" in res.stdout + res.stderr
+
+
+def _rerun_cli() -> str:
+    return str(Path(sys.executable).with_name("rerun"))
+
+
+def _prc_slam_cli() -> str:
+    return str(Path(sys.executable).with_name("prc-slam"))
+
+
+def _sim(tmp: Path) -> Path:
+    return write_sequence(Simulator(SimConfig(frames=3, seed=4)), tmp / "sim")
+
+
+def test_serve_web_serves_the_viewer_and_the_stream(tmp_path):
+    import time
+    import urllib.request
+
+    proc = subprocess.Popen(
+        [
+            _prc_slam_cli(),
+            "compare",
+            str(_sim(tmp_path)),
+            "--out",
+            str(tmp_path / "out"),
+            "--serve-web",
+            "--serve-seconds",
+            "40",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        address = None
+        deadline = time.monotonic() + 60
+        while address is None and time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if "web viewer:" in line:
+                address = line.split("web viewer:", 1)[1].strip()
+        assert address and address.startswith("http://localhost:9090/"), address
+        with urllib.request.urlopen("http://localhost:9090/", timeout=10) as page:
+            assert page.status == 200
+            assert "Rerun" in page.read().decode("utf-8", "replace")
+        recv = subprocess.run(
+            [_rerun_cli(), "--headless", "--test-receive", "--connect", "rerun+http://127.0.0.1:9876/proxy"],
+            capture_output=True,
+            text=True,
+            timeout=90,
+        )
+        assert recv.returncode == 0, recv.stdout + recv.stderr
+        assert "Received first message" in recv.stdout + recv.stderr
+    finally:
+        proc.terminate()
+        proc.wait(timeout=20)
+
+
+def test_connect_streams_to_a_running_viewer(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    receiver = subprocess.Popen(
+        [_rerun_cli(), "--headless", "--test-receive", "--port", str(port)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        import time
+
+        time.sleep(2)
+        run = subprocess.run(
+            [
+                _prc_slam_cli(),
+                "compare",
+                str(_sim(tmp_path)),
+                "--out",
+                str(tmp_path / "out"),
+                "--connect",
+                f"rerun+http://127.0.0.1:{port}/proxy",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert run.returncode == 0, run.stdout + run.stderr
+        out, _ = receiver.communicate(timeout=60)
+        assert receiver.returncode == 0, out
+        assert "Received first message" in out
+    finally:
+        if receiver.poll() is None:
+            receiver.kill()
