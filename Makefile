@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test bench lint system-deps clean
+.PHONY: setup demo test bench lint system-deps clean clean-cache
 
 $(STAMP): pyproject.toml
 	bash scripts/ensure_system_deps.sh
@@ -30,5 +30,9 @@ lint: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
-clean:
+clean: clean-cache
 	rm -rf $(VENV) out .pytest_cache
+
+# numba's on-disk cache does not notice changes in a kernel's callees in other modules
+clean-cache:
+	find prc_slam data_tools -name '*.nbi' -delete -o -name '*.nbc' -delete

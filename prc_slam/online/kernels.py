@@ -1,0 +1,181 @@
+"""Numba kernels of the online scan-line statistics (Stamos et al., Sec. 3, 4 and 7.1).
+
+A scan line is given as a row of slot indices (``-1`` pads the end); slots without a return
+are the paper's missing points M and are skipped by the statistics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def _angle_deg(a, b):
+    na = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    nb = np.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+    if na == 0.0 or nb == 0.0:
+        return 0.0
+    c = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / (na * nb)
+    c = min(1.0, max(-1.0, c))
+    return np.degrees(np.arccos(c))
+
+
+@njit(cache=True, nogil=True)
+def line_statistics(xyz, valid, line, origin):
+    """Signed angles ``sV`` and line angles ``phi_hat`` of one scan line (Sec. 3).
+
+    ``D_k = X_{k+1} - X_k`` over the returns of the line in order; ``V_k`` is the angle of
+    ``D_k`` with the z axis (0-180 deg); ``sV_k = s V_k`` with ``s`` the sign of
+    ``D_k . D_{k-1}`` (+1 for the first). ``phi_k`` is the angle between ``D_k`` and the beam
+    ``X_{k+1} - X_A``; on a straight line ``phi_{k+1} = phi_k - theta`` (the beam turns by
+    theta), so ``phi_hat_k = phi_k + (sum of the beam angles from X_1 to X_{k+1})`` is
+    constant along collinear points (the paper's ``phi_k + (k - 1) theta`` with the actual
+    angles, which also covers missing points). Values belong to point ``k`` (the last return
+    repeats its predecessor's).
+
+    Returns
+    -------
+    pts : int64 (m,)   slot indices of the returns, in line order
+    sv, phi_hat : float64 (m,)
+    """
+    n = 0
+    for j in range(line.shape[0]):
+        s = line[j]
+        if s < 0:
+            break
+        if valid[s]:
+            n += 1
+    pts = np.empty(n, np.int64)
+    m = 0
+    for j in range(line.shape[0]):
+        s = line[j]
+        if s < 0:
+            break
+        if valid[s]:
+            pts[m] = s
+            m += 1
+    sv = np.zeros(n)
+    phi_hat = np.zeros(n)
+    if n < 2:
+        return pts, sv, phi_hat
+    z = np.array([0.0, 0.0, 1.0])
+    prev = np.zeros(3)
+    d = np.zeros(3)
+    ra = np.zeros(3)
+    rb = np.zeros(3)
+    cum = 0.0
+    for k in range(n - 1):
+        for c in range(3):
+            d[c] = xyz[pts[k + 1], c] - xyz[pts[k], c]
+            ra[c] = xyz[pts[k], c] - origin[c]
+            rb[c] = xyz[pts[k + 1], c] - origin[c]
+        v = _angle_deg(d, z)
+        sign = 1.0
+        if k > 0 and (d[0] * prev[0] + d[1] * prev[1] + d[2] * prev[2]) < 0.0:
+            sign = -1.0
+        sv[k] = sign * v
+        if k > 0:
+            cum += _angle_deg(ra, rb)  # beam X_k -> X_{k+1}
+        phi_hat[k] = _angle_deg(d, rb) + cum
+        for c in range(3):
+            prev[c] = d[c]
+    sv[n - 1] = sv[n - 2]
+    phi_hat[n - 1] = phi_hat[n - 2]
+    return pts, sv, phi_hat
+
+
+@njit(cache=True, nogil=True)
+def hmm_cusum(x, means, sigma, a0, a1, h):
+    """Online CUSUM between two hidden Markov models with Gaussian emissions (Sec. 4, 7.1).
+
+    Both models are filtered forward; ``LLR_k = log p1(x_k | past) - log p0(x_k | past)``
+    from their one-step predictive likelihoods. The detector switches between "regular"
+    (H0) and "changed" (H1): in H0 it accumulates ``W = max(0, W + LLR)`` and on ``W > h``
+    marks every sample since ``W`` last was 0 as changed; in H1 it runs the mirrored
+    statistic with ``-LLR`` to detect the return.
+
+    Returns
+    -------
+    changed : bool (n,)
+    """
+    n = x.shape[0]
+    ns = means.shape[0]
+    changed = np.zeros(n, np.bool_)
+    f0 = np.full(ns, 1.0 / ns)
+    f1 = np.full(ns, 1.0 / ns)
+    p0 = np.empty(ns)
+    p1 = np.empty(ns)
+    norm = 1.0 / (sigma * np.sqrt(2 * np.pi))
+    state = 0
+    w = 0.0
+    start = 0
+    for k in range(n):
+        l0 = 0.0
+        l1 = 0.0
+        for j in range(ns):
+            r = (x[k] - means[j]) / sigma
+            e = np.exp(-0.5 * r * r) * norm + 1e-300
+            s0 = 0.0
+            s1 = 0.0
+            for i in range(ns):
+                s0 += f0[i] * a0[i, j]
+                s1 += f1[i] * a1[i, j]
+            p0[j] = s0 * e
+            p1[j] = s1 * e
+            l0 += p0[j]
+            l1 += p1[j]
+        for j in range(ns):
+            f0[j] = p0[j] / l0
+            f1[j] = p1[j] / l1
+        llr = np.log(l1) - np.log(l0)
+        if state == 1:
+            llr = -llr
+        w = max(0.0, w + llr)
+        if w == 0.0:
+            start = k + 1
+        elif w > h:
+            for j in range(start, k + 1):
+                changed[j] = state == 0
+            state = 1 - state
+            w = 0.0
+            start = k + 1
+        if state == 1:
+            changed[k] = True
+    return changed
+
+
+@njit(cache=True, nogil=True)
+def mean_shift_cusum(x, mu_a, mu_b, sigma, h):
+    """Two-state online CUSUM for a change of the mean between ``mu_a`` and ``mu_b`` (Sec. 4:
+    horizontal vs vertical, a 90 deg change of the signed angle). Starts in the state whose
+    mean is nearer the first sample; on an alarm the samples since the statistic was last 0
+    take the new state.
+
+    Returns
+    -------
+    in_b : bool (n,)
+    """
+    n = x.shape[0]
+    out = np.zeros(n, np.bool_)
+    if n == 0:
+        return out
+    state = 1 if abs(x[0] - mu_b) < abs(x[0] - mu_a) else 0
+    w = 0.0
+    start = 0
+    inv = 1.0 / (2.0 * sigma * sigma)
+    for k in range(n):
+        cur = mu_b if state == 1 else mu_a
+        new = mu_a if state == 1 else mu_b
+        llr = ((x[k] - cur) ** 2 - (x[k] - new) ** 2) * inv
+        w = max(0.0, w + llr)
+        if w == 0.0:
+            start = k + 1
+        elif w > h:
+            state = 1 - state
+            for j in range(start, k):
+                out[j] = state == 1
+            w = 0.0
+            start = k + 1
+        out[k] = state == 1
+    return out
