@@ -1,0 +1,159 @@
+"""The curb algorithm of Stamos et al. (paper 001), Sec. 6.
+
+(a) Within each scan line, the possible curb point (PC) is the first vertical return after the
+last ground return for which TestUnder is false (Sec. 7.3: no return among the previous
+``L = 30`` lies farther from the scanner than it), searched only up to ``t_high`` above the
+ground height. (b) Vertical returns are grouped into connected regions across scan lines; a
+region containing a PC is a curb if its height is at most ``t_curb = 0.2 m`` and it spans at
+least three scan lines, or fewer with a small median vertical curvature.
+
+Ours, where the paper gives no number: the TestUnder slack ``under_eps`` (0.05 m), the
+curvature test as the median absolute change of the signed angle (``max_curvature`` 30 deg,
+on regions of at least 3 points),
+and 4-connectivity of regions in the range image (rows of one scan line, neighbouring lines).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from prc_slam.online.coarse import CoarseResult, scan_lines
+from prc_slam.prc import kernels as prc_kernels
+from prc_slam.scan import Scan, SpinningSensor
+
+
+@njit(cache=True, nogil=True)
+def possible_curbs(xyz, codes, ground, valid, lines, z_ground, t_high, look_back, under_eps):
+    """Part (a): one PC (slot index) per line at most, ``-1`` where there is none."""
+    out = np.full(lines.shape[0], -1, np.int64)
+    for li in range(lines.shape[0]):
+        pts = np.empty(lines.shape[1], np.int64)
+        m = 0
+        for j in range(lines.shape[1]):
+            s = lines[li, j]
+            if s < 0:
+                break
+            if valid[s]:
+                pts[m] = s
+                m += 1
+        last_g = -1
+        for k in range(m):
+            if ground[pts[k]]:
+                last_g = k
+        if last_g < 0:
+            continue
+        for k in range(last_g + 1, m):
+            s = pts[k]
+            if xyz[s, 2] > z_ground + t_high:
+                break
+            if codes[s] != 69:
+                continue
+            d = np.sqrt(xyz[s, 0] ** 2 + xyz[s, 1] ** 2 + xyz[s, 2] ** 2)
+            far = 0.0
+            for j in range(max(0, k - look_back), k):
+                q = pts[j]
+                far = max(far, np.sqrt(xyz[q, 0] ** 2 + xyz[q, 1] ** 2 + xyz[q, 2] ** 2))
+            if far - d <= under_eps:  # TestUnder false: nothing earlier lies behind it
+                out[li] = s
+                break
+    return out
+
+
+@dataclass
+class CurbParams:
+    t_high: float = 2.0
+    look_back: int = 30
+    under_eps: float = 0.05
+    t_curb: float = 0.2
+    min_lines: int = 3
+    max_curvature: float = 30.0
+
+
+@dataclass
+class CurbResult:
+    """Curb returns per slot and one polyline (sensor frame, ordered along the curb) per curb."""
+
+    mask: np.ndarray
+    polylines: list[np.ndarray] = field(default_factory=list)
+    possible: np.ndarray | None = None
+
+
+def detect_curbs(
+    scan: Scan, coarse: CoarseResult, ground: np.ndarray, z_ground: float | None, params: CurbParams | None = None
+) -> CurbResult:
+    """Curbs of one scan (Sec. 6), given the coarse classes, the ground mask and height."""
+    p = params or CurbParams()
+    mask = np.zeros(scan.shape, dtype=bool)
+    if z_ground is None:
+        return CurbResult(mask)
+    xyz = scan.slot_xyz()
+    lines = scan_lines(scan)
+    pc = possible_curbs(
+        xyz.reshape(-1, 3).astype(np.float64),
+        coarse.codes.ravel(),
+        ground.ravel(),
+        scan.valid.ravel(),
+        lines,
+        float(z_ground),
+        p.t_high,
+        p.look_back,
+        p.under_eps,
+    )
+    pc = pc[pc >= 0]
+    possible = np.zeros(scan.shape, dtype=bool)
+    possible.ravel()[pc] = True
+    vertical = coarse.codes == 69
+    wrap = isinstance(scan.sensor, SpinningSensor)
+    regions, n = prc_kernels.connected_components(vertical, wrap)
+    if n == 0 or len(pc) == 0:
+        return CurbResult(mask, [], possible)
+    # region statistics, vectorised over the labelled slots
+    lab = regions.ravel()
+    sel = lab > 0
+    ids = lab[sel]
+    z = xyz[..., 2].ravel()[sel]
+    zmin = np.full(n + 1, np.inf)
+    zmax = np.full(n + 1, -np.inf)
+    np.minimum.at(zmin, ids, z)
+    np.maximum.at(zmax, ids, z)
+    has_pc = np.zeros(n + 1, dtype=bool)
+    has_pc[regions.ravel()[pc]] = True
+    line_of = _line_index(scan).ravel()[sel]
+    pairs = np.unique(ids.astype(np.int64) * (1 << 20) + line_of)
+    n_lines = np.bincount(pairs >> 20, minlength=n + 1)
+    size = np.bincount(ids, minlength=n + 1)
+    ok = has_pc & (zmax - zmin <= p.t_curb)
+    short = np.flatnonzero(ok & (n_lines < p.min_lines))
+    if len(short):  # few scan lines: accept only with >= 3 points and a small median curvature
+        curv = np.abs(np.diff(coarse.sv, axis=0, prepend=coarse.sv[:1])).ravel()[sel]
+        for r in short:  # candidate regions only (a handful per frame)
+            ok[r] = size[r] >= 3 and np.median(curv[ids == r]) <= p.max_curvature
+    ok[0] = False
+    mask = ok[regions]
+    return CurbResult(mask, _polylines(regions, ok, _line_index(scan), xyz), possible)
+
+
+def _polylines(regions: np.ndarray, ok: np.ndarray, line_index: np.ndarray, xyz: np.ndarray) -> list[np.ndarray]:
+    """One polyline per accepted region: the mean point of each of its scan lines, in line order."""
+    members = ok[regions] & (regions > 0)
+    if not members.any():
+        return []
+    r = regions[members].astype(np.int64)
+    key = r * (1 << 20) + line_index[members]
+    uniq, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
+    pts = xyz[members].astype(np.float64)
+    mean = np.stack([np.bincount(inv, weights=pts[:, c]) for c in range(3)], axis=1) / counts[:, None]
+    owner = uniq >> 20
+    cuts = np.flatnonzero(np.diff(owner)) + 1
+    return [m.astype(np.float32) for m in np.split(mean, cuts)]
+
+
+def _line_index(scan: Scan) -> np.ndarray:
+    """Scan line of every slot: the column for a spinning sensor, the row for a profiler."""
+    rows, cols = scan.shape
+    if isinstance(scan.sensor, SpinningSensor):
+        return np.broadcast_to(np.arange(cols)[None, :], (rows, cols))
+    return np.broadcast_to(np.arange(rows)[:, None], (rows, cols))

@@ -1,0 +1,61 @@
+"""Curb algorithm (Stamos et al., Sec. 6) on an analytic street with a curb."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from prc_slam.online import GroundDetector, coarse_classify
+from prc_slam.online.curb import detect_curbs
+from prc_slam.scan import Scan, SpinningSensor
+
+
+def street_with_step(
+    step: float, curb_y: float = -5.0, height: float = 1.7, cols: int = 360
+) -> tuple[Scan, np.ndarray]:
+    """Road z = -height for y > curb_y, a step of ``step`` m at y = curb_y, raised ground beyond.
+    Returns the scan and the mask of returns on the step's face."""
+    sensor = SpinningSensor.create(np.radians(np.arange(0.0, -30.0, -0.25)), cols)
+    d = sensor.directions()
+    dz = np.minimum(d[..., 2], -1e-6)
+    t_road = -height / dz
+    y_road = t_road * d[..., 1]
+    beyond = y_road < curb_y
+    t_face = np.where(d[..., 1] < -1e-6, curb_y / np.minimum(d[..., 1], -1e-6), 1e9)
+    z_face = t_face * d[..., 2]
+    on_face = beyond & (z_face >= -height) & (z_face <= -height + step)
+    t_walk = (-height + step) / dz
+    t = np.where(~beyond, t_road, np.where(on_face, t_face, t_walk))
+    t = np.where((d[..., 2] < -1e-3) & (t < 60), t, 0.0)
+    return Scan(t.astype(np.float32), sensor), on_face & (t > 0)
+
+
+def run(scan: Scan):
+    det = GroundDetector()
+    coarse = coarse_classify(scan)
+    ground = det.process(scan, coarse)
+    return detect_curbs(scan, coarse, ground, det.height), ground
+
+
+def test_curb_is_found_with_a_polyline():
+    scan, face = street_with_step(0.12)
+    res, ground = run(scan)
+    assert face.sum() > 100
+    assert res.mask[face].mean() > 0.5
+    assert not (res.mask & ground).any()
+    assert (res.mask & ~face).sum() < 0.1 * res.mask.sum()
+    assert res.polylines and max(len(p) for p in res.polylines) >= 3
+    longest = max(res.polylines, key=len)
+    np.testing.assert_allclose(longest[:, 1], -5.0, atol=0.05)  # the polyline runs along the curb
+
+
+def test_a_one_metre_step_is_not_a_curb():
+    scan, face = street_with_step(1.0)
+    res, _ = run(scan)
+    assert not res.mask[face].any()
+
+
+def test_no_ground_height_no_curbs():
+    scan, _ = street_with_step(0.12)
+    coarse = coarse_classify(scan)
+    res = detect_curbs(scan, coarse, np.zeros(scan.shape, bool), None)
+    assert not res.mask.any() and res.polylines == []
