@@ -59,3 +59,39 @@ def test_no_ground_height_no_curbs():
     coarse = coarse_classify(scan)
     res = detect_curbs(scan, coarse, np.zeros(scan.shape, bool), None)
     assert not res.mask.any() and res.polylines == []
+
+
+def test_detect_command_writes_labels_json_and_recording(tmp_path):
+    import json
+
+    import rerun.chunk as rc
+    from typer.testing import CliRunner
+
+    from data_tools.sim.dataset import write_sequence
+    from data_tools.sim.simulator import SimConfig, Simulator
+    from prc_slam.cli import app
+
+    root = write_sequence(Simulator(SimConfig(frames=2, seed=6)), tmp_path / "sim")
+    res = CliRunner().invoke(
+        app,
+        [
+            "detect",
+            str(root),
+            "--labels-out",
+            str(tmp_path / "labels"),
+            "--json",
+            str(tmp_path / "d.json"),
+            "--rrd",
+            str(tmp_path / "d.rrd"),
+            "--log-every",
+            "1",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "d.json").read_text())
+    assert m["frames"] == 2 and m["per_class"]["ground"]["precision"] > 0.95
+    labels = np.fromfile(tmp_path / "labels" / "000000.label", dtype=np.uint32)
+    assert len(labels) == m["points"] // 2 or len(labels) > 0
+    assert set(np.unique(labels)) <= {2, 5, 66, 68, 69}
+    paths = {c.entity_path for c in rc.RrdReader(str(tmp_path / "d.rrd")).store().stream()}
+    assert {"/range_image/online", "/world/detections/curbs", "/world/sensor/raw"} <= paths

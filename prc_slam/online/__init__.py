@@ -5,6 +5,7 @@ algorithm of Sec. 6. The car algorithm (Sec. 7) and the combination of Sec. 8 ar
 
 from prc_slam.online.coarse import CoarseParams, CoarseResult, coarse_classify, scan_lines
 from prc_slam.online.curb import CurbParams, CurbResult, detect_curbs
+from prc_slam.online.detector import OnlineDetector, OnlineResult
 from prc_slam.online.ground import GroundDetector, GroundParams
 
 __all__ = [
@@ -14,6 +15,8 @@ __all__ = [
     "CurbResult",
     "GroundDetector",
     "GroundParams",
+    "OnlineDetector",
+    "OnlineResult",
     "coarse_classify",
     "detect_curbs",
     "scan_lines",

@@ -13,6 +13,8 @@ Entity paths::
     world/trajectory/variants/V   LineStrips3D, one strip per variant in comparisons
     range_image/range             DepthImage (metres)
     range_image/prc               SegmentationImage of PRC labels
+    range_image/online            SegmentationImage of the online detectors' labels
+    world/detections/curbs        LineStrips3D, one polyline per detected curb
     metrics/...                   Scalars: points in / kept per class, ms per stage, ICP threshold, error
     logs                          TextLog: warnings and skips
 
@@ -121,6 +123,17 @@ class RerunSink:
         self.rec.log("world/sensor/raw", rr.Points3D(pts, class_ids=ids, radii=0.03))
         self.rec.log("range_image/range", rr.DepthImage(scan.ranges, meter=1.0))
         self.rec.log("range_image/prc", rr.SegmentationImage(labels))
+
+    def log_online(self, index: int, scan, result, pose: np.ndarray | None = None) -> None:
+        """Online detector output: ``range_image/online`` and ``world/detections/curbs``
+        (polylines in the world frame given ``pose``, else the sensor frame)."""
+        self._time(index, scan.meta.get("frame_time", float(index)))
+        if index % self.config.every:
+            return
+        self.rec.log("range_image/online", rr.SegmentationImage(result.labels))
+        pose = np.eye(4) if pose is None else pose
+        strips = [p @ pose[:3, :3].T + pose[:3, 3] for p in result.curb_polylines]
+        self.rec.log("world/detections/curbs", rr.LineStrips3D(strips, colors=[L.color_lut()[L.CURB]]))
 
     def log_record(self, record, gt_pose: np.ndarray | None = None) -> None:
         """One frame of an odometry comparison (:class:`prc_slam.odometry.compare.FrameRecord`).

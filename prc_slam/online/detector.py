@@ -1,0 +1,52 @@
+"""``OnlineDetector``: the per-scan-line detectors run together on a stream of scans.
+
+Labels per slot: the coarse classes (68 horizontal, 69 vertical, 5 vegetation), overwritten by
+ground (2) and curb (66). The car algorithm (Sec. 7) and the final combination of Sec. 8 will
+add vehicle (65).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from prc_slam import labels as L
+from prc_slam.online.coarse import CoarseParams, CoarseResult, coarse_classify
+from prc_slam.online.curb import CurbParams, detect_curbs
+from prc_slam.online.ground import GroundDetector, GroundParams
+from prc_slam.scan import Scan
+
+
+@dataclass
+class OnlineResult:
+    """One scan's detector output."""
+
+    labels: np.ndarray  # uint8 (rows, cols)
+    coarse: CoarseResult
+    curb_polylines: list[np.ndarray] = field(default_factory=list)
+    ground_height: float | None = None
+    seconds: float = 0.0
+
+
+class OnlineDetector:
+    """Streaming detectors; the ground height estimate carries over from scan to scan."""
+
+    def __init__(
+        self, coarse: CoarseParams | None = None, ground: GroundParams | None = None, curb: CurbParams | None = None
+    ) -> None:
+        self.coarse_params = coarse or CoarseParams()
+        self.curb_params = curb or CurbParams()
+        self.ground = GroundDetector(ground)
+
+    def process(self, scan: Scan) -> OnlineResult:
+        """Label every slot of ``scan``."""
+        t0 = time.perf_counter()
+        coarse = coarse_classify(scan, self.coarse_params)
+        ground = self.ground.process(scan, coarse)
+        curbs = detect_curbs(scan, coarse, ground, self.ground.height, self.curb_params)
+        labels = coarse.codes.copy()
+        labels[ground] = L.GROUND
+        labels[curbs.mask] = L.CURB
+        return OnlineResult(labels, coarse, curbs.polylines, self.ground.height, time.perf_counter() - t0)
