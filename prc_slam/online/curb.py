@@ -7,8 +7,8 @@ ground height. (b) Vertical returns are grouped into connected regions across sc
 region containing a PC is a curb if its height is at most ``t_curb = 0.2 m`` and it spans at
 least three scan lines, or fewer with a small median vertical curvature.
 
-Ours, where the paper gives no number: the TestUnder slack ``under_eps`` (0.05 m), the
-curvature test as the median absolute change of the signed angle (``max_curvature`` 30 deg,
+TestUnder's slack is the paper's 0.01 m (Sec. 7.3, footnote 3). Ours, where the paper gives
+no number: the curvature test as the median absolute change of the signed angle (``max_curvature`` 30 deg,
 on regions of at least 3 points),
 and 4-connectivity of regions in the range image (rows of one scan line, neighbouring lines).
 """
@@ -66,7 +66,7 @@ def possible_curbs(xyz, codes, ground, valid, lines, z_ground, t_high, look_back
 class CurbParams:
     t_high: float = 2.0
     look_back: int = 30
-    under_eps: float = 0.05
+    under_eps: float = 0.01  # Sec. 7.3, footnote 3
     t_curb: float = 0.2
     min_lines: int = 3
     max_curvature: float = 30.0
