@@ -1,0 +1,304 @@
+"""The car algorithm of Stamos et al. (paper 001), Sec. 7, and the curb correction of Sec. 8.
+
+Per scan line (returns in line order, missing slots are the M state):
+
+7.2 suspicious lines: an online CUSUM between two Markov chains over the observed states
+    H, V, M (regular surface vs. possible car, the paper's matrices, ``h = 1``), stopped at the
+    first T' point;
+7.3 dividers on suspicious lines: a first divider at an H -> V transition whose signed angle is
+    gradual (``sV < l1 = -5`` or ``sV > l2 = 20`` deg) or, if sudden, passes TestUnder (some of
+    the ``L = 30`` previous returns lie farther from the scanner, slack 0.01 m); next dividers
+    at forward-looking jumps of more than ``t_sep = 4 m`` between successive returns; an
+    interval that contains a long, almost perfectly horizontal run (3 m) ends there and the
+    search for a first divider restarts after it; the search stops at the first T' point and
+    at ``ground + 2 m``; long vertical runs are subtracted from the intervals;
+7.4 high verticals: beyond the horizontal distance of the first vertical run that rises above
+    ``ground + 2.5 m`` nothing is a car;
+7.5 Fourier test: a sub-interval is a car when no frequency of its signed angles in the upper
+    half of the spectrum exceeds half the largest magnitude;
+7.6 / 8 the rest keeps its coarse label, and car points behind a verified curb revert too.
+
+Ours, where the paper gives no number: "long vertical run" (``long_vertical`` 1.0 m of height),
+"almost perfectly horizontal" (``|sV - 90| < 10`` deg), the Fourier band (``N/4 < k <= N/2``;
+the set S is garbled in our copy of the text) and the minimum interval length (4 returns).
+Car instances are the 8-connected car regions of the range image, with oriented boxes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from prc_slam.online.coarse import CoarseResult, scan_lines
+from prc_slam.scan import Scan
+
+H, V, M = 0, 1, 2
+A_REGULAR = np.array([[0.8, 0.1, 0.1], [0.09, 0.9, 0.01], [0.6, 0.3, 0.1]])
+A_CAR = np.array([[0.5, 0.25, 0.25], [0.25, 0.5, 0.25], [0.25, 0.25, 0.5]])
+
+
+@njit(cache=True, nogil=True)
+def markov_cusum_trigger(states, a0, a1, h):
+    """First index where the CUSUM of ``log a1[s_{k-1}, s_k] - log a0[s_{k-1}, s_k]`` exceeds
+    ``h`` (-1 if never). ``states`` holds 0 (H), 1 (V), 2 (M); -1 stops the detector (T')."""
+    w = 0.0
+    for k in range(1, states.shape[0]):
+        if states[k] < 0:
+            return -1
+        if states[k - 1] < 0:
+            continue
+        w = max(0.0, w + np.log(a1[states[k - 1], states[k]]) - np.log(a0[states[k - 1], states[k]]))
+        if w > h:
+            return k
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def high_frequency_dominant(x):
+    """Fourier test of Sec. 7.5: True (vegetation-like) when some |F(k)| with N/4 < k <= N/2
+    exceeds half of the largest |F(k)|, k = 0..N/2."""
+    n = x.shape[0]
+    half = n // 2
+    mags = np.zeros(half + 1)
+    for k in range(half + 1):
+        re = 0.0
+        im = 0.0
+        for t in range(n):
+            a = -2.0 * np.pi * k * t / n
+            re += x[t] * np.cos(a)
+            im += x[t] * np.sin(a)
+        mags[k] = np.sqrt(re * re + im * im)
+    mx = mags.max()
+    for k in range(n // 4 + 1, half + 1):
+        if mags[k] > mx / 2:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _dist(xyz, a, b):
+    return np.sqrt(((xyz[a] - xyz[b]) ** 2).sum())
+
+
+@njit(cache=True, nogil=True)
+def _norm(xyz, a):
+    return np.sqrt((xyz[a] ** 2).sum())
+
+
+@njit(cache=True, nogil=True)
+def car_lines(xyz, codes, tprime, sv, valid, lines, z_ground, curb_slot, l1, l2, look_back, under_eps,
+              t_sep, long_h, flat_tol, long_v, t_height, t_high_vertical, min_len):
+    """Car mask per slot over all scan lines (Sec. 7.2-7.6 and the curb correction of Sec. 8).
+    ``curb_slot[line]`` is the line's verified curb return (-1 if none)."""
+    car = np.zeros(xyz.shape[0], np.bool_)
+    for li in range(lines.shape[0]):
+        line = lines[li]
+        n_all = 0
+        while n_all < line.shape[0] and line[n_all] >= 0:
+            n_all += 1
+        states = np.full(n_all, -1, np.int64)
+        for j in range(n_all):
+            s = line[j]
+            if not valid[s]:
+                states[j] = M
+            elif tprime[s]:
+                states[j] = -1
+            elif codes[s] == 68:
+                states[j] = H
+            elif codes[s] == 69:
+                states[j] = V
+            else:
+                states[j] = M if j > 0 and states[j - 1] == M else H  # plain T: not part of the chain
+        if markov_cusum_trigger(states, A_REGULAR, A_CAR, 1.0) < 0:
+            continue
+        pts = np.empty(n_all, np.int64)
+        m = 0
+        for j in range(n_all):
+            if valid[line[j]]:
+                pts[m] = line[j]
+                m += 1
+        pts = pts[:m]
+        # 7.4 high verticals: horizontal distance limit
+        limit = np.inf
+        run_start = -1
+        for k in range(m):
+            if codes[pts[k]] == 69:
+                if run_start < 0:
+                    run_start = k
+                if xyz[pts[k], 2] > z_ground + t_high_vertical:
+                    limit = np.sqrt(xyz[pts[k], 0] ** 2 + xyz[pts[k], 1] ** 2)
+                    break
+            else:
+                run_start = -1
+        # 8: nothing beyond a verified curb along this line
+        stop_at = m
+        if curb_slot[li] >= 0:
+            for k in range(m):
+                if pts[k] == curb_slot[li]:
+                    stop_at = k
+                    break
+        # 7.3 dividers
+        k = 1
+        while k < stop_at:
+            t1 = -1
+            while k < stop_at:  # first divider
+                s = pts[k]
+                if tprime[s] or xyz[s, 2] > z_ground + t_height:
+                    k = stop_at
+                    break
+                if codes[pts[k - 1]] == 68 and codes[s] == 69:
+                    if sv[s] < l1 or sv[s] > l2:
+                        t1 = k
+                        break
+                    d = _norm(xyz, s)
+                    far = 0.0
+                    for j in range(max(0, k - look_back), k):
+                        far = max(far, _norm(xyz, pts[j]))
+                    if far - d > under_eps:  # TestUnder true: something lies under it
+                        t1 = k
+                        break
+                k += 1
+            if t1 < 0:
+                break
+            # next divider, long-horizontal cut, termination
+            t2 = t1
+            restart = -1
+            flat_from = -1
+            j = t1
+            while j + 1 < stop_at:
+                a, b = pts[j], pts[j + 1]
+                if tprime[b] or xyz[b, 2] > z_ground + t_height:
+                    break
+                if codes[b] == 68 and abs(sv[b] - 90.0) < flat_tol:
+                    if flat_from < 0:
+                        flat_from = j + 1
+                    ext = np.sqrt((xyz[b, 0] - xyz[pts[flat_from], 0]) ** 2 + (xyz[b, 1] - xyz[pts[flat_from], 1]) ** 2)
+                    if ext >= long_h:
+                        t2 = flat_from - 1
+                        restart = j + 2
+                        break
+                else:
+                    flat_from = -1
+                step = xyz[b] - xyz[a]
+                if _dist(xyz, a, b) > t_sep and (step * xyz[a]).sum() > 0:
+                    t2 = j
+                    restart = j + 1
+                    break
+                j += 1
+                t2 = j
+            # subtract long vertical runs, Fourier test per sub-interval
+            a = t1
+            while a <= t2:
+                b = a
+                while b <= t2:
+                    if codes[pts[b]] == 69:
+                        c = b
+                        while c + 1 <= t2 and codes[pts[c + 1]] == 69:
+                            c += 1
+                        if xyz[pts[c], 2] - xyz[pts[b], 2] >= long_v:
+                            break
+                        b = c + 1
+                    else:
+                        b += 1
+                end = b - 1  # sub-interval a..end
+                if end - a + 1 >= min_len:
+                    x = np.empty(end - a + 1)
+                    for q in range(a, end + 1):
+                        x[q - a] = sv[pts[q]]
+                    if not high_frequency_dominant(x):
+                        for q in range(a, end + 1):
+                            s = pts[q]
+                            if np.sqrt(xyz[s, 0] ** 2 + xyz[s, 1] ** 2) <= limit:
+                                car[s] = True
+                if b > t2:
+                    break
+                c = b
+                while c + 1 <= t2 and codes[pts[c + 1]] == 69:
+                    c += 1
+                a = c + 1
+            if restart < 0:
+                break
+            k = max(restart, t2 + 1)
+    return car
+
+
+@dataclass
+class CarParams:
+    l1: float = -5.0
+    l2: float = 20.0
+    look_back: int = 30
+    under_eps: float = 0.01
+    t_sep: float = 4.0
+    long_horizontal: float = 3.0
+    flat_tolerance: float = 10.0
+    long_vertical: float = 1.0
+    t_height: float = 2.0
+    t_high_vertical: float = 2.5
+    min_len: int = 4
+
+
+@dataclass
+class CarResult:
+    """Car returns per slot, and per car instance: slot mask id and an oriented box
+    (centre xyz, size length/width/height, yaw) in the sensor frame."""
+
+    mask: np.ndarray
+    instances: np.ndarray
+    boxes: list[dict] = field(default_factory=list)
+
+
+def detect_cars(scan: Scan, coarse: CoarseResult, z_ground: float | None, curb_mask: np.ndarray | None = None,
+                params: CarParams | None = None) -> CarResult:
+    """Cars of one scan (Sec. 7) given the coarse result, ground height and verified curbs."""
+    p = params or CarParams()
+    empty = np.zeros(scan.shape, dtype=bool)
+    if z_ground is None:
+        return CarResult(empty, np.zeros(scan.shape, np.int32))
+    xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
+    lines = scan_lines(scan)
+    curb_slot = np.full(len(lines), -1, np.int64)
+    if curb_mask is not None and curb_mask.any():
+        on = curb_mask.ravel()[np.maximum(lines, 0)] & (lines >= 0)
+        has = on.any(axis=1)
+        curb_slot[has] = lines[has, np.argmax(on[has], axis=1)]
+    car = car_lines(xyz, coarse.codes.ravel(), coarse.t_prime.ravel(), coarse.sv.ravel().astype(np.float64),
+                    scan.valid.ravel(), lines, float(z_ground), curb_slot, p.l1, p.l2, p.look_back, p.under_eps,
+                    p.t_sep, p.long_horizontal, p.flat_tolerance, p.long_vertical, p.t_height, p.t_high_vertical,
+                    p.min_len).reshape(scan.shape)
+    instances, boxes = car_instances(car, scan.slot_xyz())
+    return CarResult(car, instances, boxes)
+
+
+def car_instances(car: np.ndarray, xyz: np.ndarray, min_points: int = 20) -> tuple[np.ndarray, list[dict]]:
+    """8-connected car regions (regions under ``min_points`` are dropped) and their oriented
+    boxes from the principal axis of the points in x-y."""
+    from scipy import ndimage
+
+    lab, n = ndimage.label(car, structure=np.ones((3, 3), bool))
+    sizes = np.bincount(lab.ravel(), minlength=n + 1)
+    keep = sizes >= min_points
+    keep[0] = False
+    remap = np.zeros(n + 1, np.int32)
+    remap[keep] = np.arange(1, keep.sum() + 1)
+    lab = remap[lab]
+    boxes = []
+    for i in range(1, int(keep.sum()) + 1):  # one box per car (a handful per frame)
+        pts = xyz[lab == i].astype(np.float64)
+        c = pts[:, :2].mean(axis=0)
+        cov = np.cov((pts[:, :2] - c).T) if len(pts) > 2 else np.eye(2)
+        w, v = np.linalg.eigh(cov)
+        axis = v[:, np.argmax(w)]
+        yaw = float(np.arctan2(axis[1], axis[0]))
+        rot = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])
+        local = (pts[:, :2] - c) @ rot.T
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        centre_xy = c + ((lo + hi) / 2) @ rot
+        boxes.append({
+            "center": [float(centre_xy[0]), float(centre_xy[1]), float((pts[:, 2].min() + pts[:, 2].max()) / 2)],
+            "size": [float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(np.ptp(pts[:, 2]))],
+            "yaw": yaw,
+            "points": len(pts),
+        })
+    return lab, boxes
