@@ -88,8 +88,27 @@ def _norm(xyz, a):
 
 
 @njit(cache=True, nogil=True)
-def car_lines(xyz, codes, tprime, sv, valid, lines, z_ground, curb_slot, l1, l2, look_back, under_eps,
-              t_sep, long_h, flat_tol, long_v, t_height, t_high_vertical, min_len):
+def car_lines(
+    xyz,
+    codes,
+    tprime,
+    sv,
+    valid,
+    lines,
+    z_ground,
+    curb_slot,
+    l1,
+    l2,
+    look_back,
+    under_eps,
+    t_sep,
+    long_h,
+    flat_tol,
+    long_v,
+    t_height,
+    t_high_vertical,
+    min_len,
+):
     """Car mask per slot over all scan lines (Sec. 7.2-7.6 and the curb correction of Sec. 8).
     ``curb_slot[line]`` is the line's verified curb return (-1 if none)."""
     car = np.zeros(xyz.shape[0], np.bool_)
@@ -249,8 +268,13 @@ class CarResult:
     boxes: list[dict] = field(default_factory=list)
 
 
-def detect_cars(scan: Scan, coarse: CoarseResult, z_ground: float | None, curb_mask: np.ndarray | None = None,
-                params: CarParams | None = None) -> CarResult:
+def detect_cars(
+    scan: Scan,
+    coarse: CoarseResult,
+    z_ground: float | None,
+    curb_mask: np.ndarray | None = None,
+    params: CarParams | None = None,
+) -> CarResult:
     """Cars of one scan (Sec. 7) given the coarse result, ground height and verified curbs."""
     p = params or CarParams()
     empty = np.zeros(scan.shape, dtype=bool)
@@ -263,10 +287,27 @@ def detect_cars(scan: Scan, coarse: CoarseResult, z_ground: float | None, curb_m
         on = curb_mask.ravel()[np.maximum(lines, 0)] & (lines >= 0)
         has = on.any(axis=1)
         curb_slot[has] = lines[has, np.argmax(on[has], axis=1)]
-    car = car_lines(xyz, coarse.codes.ravel(), coarse.t_prime.ravel(), coarse.sv.ravel().astype(np.float64),
-                    scan.valid.ravel(), lines, float(z_ground), curb_slot, p.l1, p.l2, p.look_back, p.under_eps,
-                    p.t_sep, p.long_horizontal, p.flat_tolerance, p.long_vertical, p.t_height, p.t_high_vertical,
-                    p.min_len).reshape(scan.shape)
+    car = car_lines(
+        xyz,
+        coarse.codes.ravel(),
+        coarse.t_prime.ravel(),
+        coarse.sv.ravel().astype(np.float64),
+        scan.valid.ravel(),
+        lines,
+        float(z_ground),
+        curb_slot,
+        p.l1,
+        p.l2,
+        p.look_back,
+        p.under_eps,
+        p.t_sep,
+        p.long_horizontal,
+        p.flat_tolerance,
+        p.long_vertical,
+        p.t_height,
+        p.t_high_vertical,
+        p.min_len,
+    ).reshape(scan.shape)
     instances, boxes = car_instances(car, scan.slot_xyz())
     return CarResult(car, instances, boxes)
 
@@ -295,10 +336,12 @@ def car_instances(car: np.ndarray, xyz: np.ndarray, min_points: int = 20) -> tup
         local = (pts[:, :2] - c) @ rot.T
         lo, hi = local.min(axis=0), local.max(axis=0)
         centre_xy = c + ((lo + hi) / 2) @ rot
-        boxes.append({
-            "center": [float(centre_xy[0]), float(centre_xy[1]), float((pts[:, 2].min() + pts[:, 2].max()) / 2)],
-            "size": [float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(np.ptp(pts[:, 2]))],
-            "yaw": yaw,
-            "points": len(pts),
-        })
+        boxes.append(
+            {
+                "center": [float(centre_xy[0]), float(centre_xy[1]), float((pts[:, 2].min() + pts[:, 2].max()) / 2)],
+                "size": [float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(np.ptp(pts[:, 2]))],
+                "yaw": yaw,
+                "points": len(pts),
+            }
+        )
     return lab, boxes

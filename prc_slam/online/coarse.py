@@ -44,6 +44,7 @@ class CoarseParams:
     tp_regular: np.ndarray = field(default_factory=lambda: np.tile([0.1, 0.8, 0.1], (3, 1)))
     tp_fast: np.ndarray = field(default_factory=_uniform3)
     tp_h: float = 10.0
+    min_step: float = 0.0  # beyond the paper: minimum baseline of D_k (m), see line_statistics
 
 
 def scan_lines(scan: Scan) -> np.ndarray:
@@ -69,7 +70,7 @@ def scan_lines(scan: Scan) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th):
+def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th, min_step):
     n_slots = xyz.shape[0]
     codes = np.zeros(n_slots, np.uint8)
     t_prime = np.zeros(n_slots, np.bool_)
@@ -77,7 +78,7 @@ def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0
     phi_out = np.zeros(n_slots, np.float32)
     origin = np.zeros(3)
     for li in range(lines.shape[0]):
-        pts, sv, phi = K.line_statistics(xyz, valid, lines[li], origin)
+        pts, sv, phi = K.line_statistics(xyz, valid, lines[li], origin, min_step)
         n = pts.shape[0]
         if n == 0:
             continue
@@ -132,7 +133,7 @@ def coarse_classify(scan: Scan, params: CoarseParams | None = None) -> CoarseRes
         xyz, valid, lines,
         np.array(p.veg_means, float), p.veg_sigma, p.veg_slow, p.veg_fast, p.veg_h,
         p.hv_sigma, p.hv_h,
-        np.array(p.tp_means, float), p.tp_sigma, p.tp_regular, p.tp_fast, p.tp_h,
+        np.array(p.tp_means, float), p.tp_sigma, p.tp_regular, p.tp_fast, p.tp_h, p.min_step,
     )  # fmt: skip
     shape = scan.shape
     assert L.VEGETATION == 5 and L.HORIZONTAL == 68 and L.VERTICAL == 69  # codes used by the kernel

@@ -8,8 +8,10 @@ first 50 estimates; a run whose ``|z_i - z_d| / |z_d| < 10 %`` becomes ground an
 the following horizontal, almost collinear returns; otherwise part (a) restarts after the run.
 ``z_d`` is then updated from every new estimate.
 
-Not given by the paper, ours: mean-shift bandwidths (``phi_bandwidth`` 2 deg, ``z_bandwidth``
-0.2 m), the collinearity tolerance of growing (``grow_tolerance`` 3 deg), and the update of
+Not given by the paper, ours: mean-shift bandwidths (``phi_bandwidth`` 10 deg, ``z_bandwidth``
+0.2 m), the collinearity tolerance of growing (``grow_tolerance`` 10 deg; 2-3 deg found 2 % of
+the ground on a simulated profiler drive, whose cambered, rough road spreads ``phi_hat`` by several
+degrees, 10 deg found 64 % at precision 0.99), and the update of
 ``z_d`` after the first 50 estimates, which follows the main mode by mean-shift iterations
 started at the current ``z_d`` over the last 500 estimates instead of re-searching every mode.
 """
@@ -201,10 +203,10 @@ def ground_lines(
 @dataclass
 class GroundParams:
     run_len: int = 10
-    phi_bandwidth: float = 2.0
+    phi_bandwidth: float = 10.0
     z_bandwidth: float = 0.2
     rel_tolerance: float = 0.10
-    grow_tolerance: float = 3.0
+    grow_tolerance: float = 10.0
     n_init: int = 50
 
 

@@ -22,7 +22,7 @@ def _angle_deg(a, b):
 
 
 @njit(cache=True, nogil=True)
-def line_statistics(xyz, valid, line, origin):
+def line_statistics(xyz, valid, line, origin, min_step=0.0):
     """Signed angles ``sV`` and line angles ``phi_hat`` of one scan line (Sec. 3).
 
     ``D_k = X_{k+1} - X_k`` over the returns of the line in order; ``V_k`` is the angle of
@@ -31,7 +31,12 @@ def line_statistics(xyz, valid, line, origin):
     ``X_{k+1} - X_A``; on a straight line ``phi_{k+1} = phi_k - theta`` (the beam turns by
     theta), so ``phi_hat_k = phi_k + (sum of the beam angles from X_1 to X_{k+1})`` is
     constant along collinear points (the paper's ``phi_k + (k - 1) theta`` with the actual
-    angles, which also covers missing points). Values belong to point ``k`` (the last return
+    angles, which also covers missing points).
+
+    ``min_step`` > 0 (beyond the paper) takes ``D_k`` to the first later return at least
+    ``min_step`` away instead of the next one: on dense profiles whose point spacing is
+    comparable to the range noise the paper's successive differences are noise. With
+    ``min_step = 0`` (or sparse lines) this is the paper's definition. Values belong to point ``k`` (the last return
     repeats its predecessor's).
 
     Returns
@@ -65,9 +70,18 @@ def line_statistics(xyz, valid, line, origin):
     ra = np.zeros(3)
     rb = np.zeros(3)
     cum = 0.0
+    nxt = 1
     for k in range(n - 1):
+        nxt = max(nxt, k + 1)
+        while nxt < n - 1:
+            dx = xyz[pts[nxt], 0] - xyz[pts[k], 0]
+            dy = xyz[pts[nxt], 1] - xyz[pts[k], 1]
+            dz = xyz[pts[nxt], 2] - xyz[pts[k], 2]
+            if dx * dx + dy * dy + dz * dz >= min_step * min_step:
+                break
+            nxt += 1
         for c in range(3):
-            d[c] = xyz[pts[k + 1], c] - xyz[pts[k], c]
+            d[c] = xyz[pts[nxt], c] - xyz[pts[k], c]
             ra[c] = xyz[pts[k], c] - origin[c]
             rb[c] = xyz[pts[k + 1], c] - origin[c]
         v = _angle_deg(d, z)
