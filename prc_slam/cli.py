@@ -73,6 +73,7 @@ class Viewer:
         every: int,
         spawn: bool = False,
         serve_seconds: float | None = None,
+        map_voxel: float = 0.5,
     ):
         self.sink = None
         self.serve_web, self.serve_seconds = serve_web, serve_seconds
@@ -85,7 +86,7 @@ class Viewer:
         rec, address = open_recording(
             rrd=None if rrd is None else str(rrd), connect=connect, serve_web=serve_web, spawn=spawn
         )
-        self.sink = RerunSink(rec, VizConfig(every=every))
+        self.sink = RerunSink(rec, VizConfig(every=every, map_voxel=map_voxel))
         self.rrd = rrd
         if address:
             console.print(f"web viewer: {address}")
@@ -113,6 +114,7 @@ RRD_OPT = typer.Option(None, "--rrd", help="write a Rerun recording (.rrd) here"
 CONNECT_OPT = typer.Option(None, "--connect", help="stream to a running Rerun viewer (rerun+http://host:9876/proxy)")
 SERVE_OPT = typer.Option(False, "--serve-web", help="serve the Rerun web viewer on localhost and print its address")
 EVERY_OPT = typer.Option(5, "--log-every", min=1, help="log clouds and images on every n-th frame")
+MAP_VOXEL_OPT = typer.Option(0.5, "--map-voxel", min=0.0, help="thin the logged local map to this voxel (m)")
 SERVE_SECONDS_OPT = typer.Option(None, "--serve-seconds", help="with --serve-web: stop serving after this long")
 
 
@@ -532,6 +534,10 @@ def demo(
     out: Path = typer.Option(Path("out/demo"), help="output directory"),
     frames: int = typer.Option(150, min=2, help="frames of the simulated hdl64 urban drive"),
     seed: int = typer.Option(0, help="scene and noise seed"),
+    connect: str | None = CONNECT_OPT,
+    serve_web: bool = SERVE_OPT,
+    log_every: int = EVERY_OPT,
+    map_voxel: float = MAP_VOXEL_OPT,
 ) -> None:
     """Simulate an urban drive (cached after the first run), score PRC against its ground truth,
     and compare raw vs PRC-filtered KISS-ICP odometry (report, metrics, trajectories, plots)."""
@@ -555,7 +561,7 @@ def demo(
         prc_metrics = run_classification(iter(seq), cfg.prc, on_frame=lambda _f: progress.advance(task))
         task = progress.add_task("odometry raw | prc", total=len(seq))
         rrd = out.with_suffix(".rrd")
-        viewer = Viewer(rrd, None, False, 5)
+        viewer = Viewer(rrd, connect, serve_web, log_every, map_voxel=map_voxel)
 
         def on_frame(record) -> None:
             progress.advance(task)

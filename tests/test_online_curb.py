@@ -94,6 +94,12 @@ def test_detect_command_writes_labels_json_and_recording(tmp_path):
     from data_tools import open_dataset
 
     assert len(labels) == open_dataset(root)[0].n_points  # one label per input point
-    assert set(np.unique(labels)) <= {2, 5, 66, 68, 69}
+    assert set(np.unique(labels)) <= {2, 5, 65, 66, 68, 69}
     paths = {c.entity_path for c in rc.RrdReader(str(tmp_path / "d.rrd")).store().stream()}
-    assert {"/range_image/online", "/world/detections/curbs", "/world/sensor/raw"} <= paths
+    assert {
+        "/range_image/online",
+        "/world/detections/curbs",
+        "/world/detections/cars",
+        "/world/sensor/online",
+        "/world/sensor/raw",
+    } <= paths

@@ -15,6 +15,7 @@ from data_tools.sim.dataset import write_sequence
 from data_tools.sim.simulator import NoiseConfig, SimConfig, Simulator
 from prc_slam.config import Config, PRCConfig
 from prc_slam.odometry.compare import run_compare
+from prc_slam.online import OnlineDetector
 from prc_slam.viz.sink import RerunSink, VizConfig, open_recording
 
 FRAMES = 6
@@ -29,15 +30,22 @@ def recorded(tmp_path_factory):
     rrd = tmp / "run.rrd"
     rec, _ = open_recording(rrd=str(rrd))
     sink = RerunSink(rec, VizConfig(every=1, map_every=1))
+    detector = OnlineDetector()
     expected = []
 
     def on_frame(record):
-        sink.log_record(record, gt_pose=record.frame.scan.gt_pose)
+        scan = record.frame.scan
+        sink.log_record(record, gt_pose=scan.gt_pose)
+        online = detector.process(scan)
+        sink.log_online(record.index, scan, online, scan.gt_pose)
         expected.append(
             {
                 "labels": record.frame.point_labels().copy(),
                 "kept": record.kept["prc"].copy(),
-                "n": record.frame.scan.n_points,
+                "n": scan.n_points,
+                "online": scan.per_point(online.labels),
+                "cars": len(online.car_boxes),
+                "curbs": len(online.curb_polylines),
             }
         )
 
@@ -82,6 +90,10 @@ def test_every_entity_is_recorded(recorded):
         "/metrics/icp_threshold/prc",
         "/metrics/points/ground/kept",
         "/metrics/error/position_m",
+        "/world/detections/cars",
+        "/world/detections/curbs",
+        "/world/sensor/online",
+        "/range_image/online",
     ):
         assert p in paths, p
 
@@ -98,6 +110,18 @@ def test_point_counts_and_class_ids_match_the_run(recorded):
         np.testing.assert_array_equal(raw_ids[i], exp["labels"])
         assert len(filt[i]) == int(exp["kept"].sum())
         np.testing.assert_array_equal(filt_ids[i], exp["labels"][exp["kept"]])
+
+
+def test_detector_labels_boxes_and_curbs_match_the_run(recorded):
+    rrd, expected = recorded
+    ids = rows_by_frame(rrd, "/world/sensor/online", "Points3D:class_ids")
+    boxes = rows_by_frame(rrd, "/world/detections/cars", "Boxes3D:half_sizes")
+    curbs = rows_by_frame(rrd, "/world/detections/curbs", "LineStrips3D:strips")
+    for i, exp in enumerate(expected):
+        np.testing.assert_array_equal(ids[i], exp["online"])
+        assert len(boxes.get(i) or []) == exp["cars"]
+        assert len(curbs.get(i) or []) == exp["curbs"]
+    assert any(exp["cars"] for exp in expected) and any(exp["curbs"] for exp in expected)
 
 
 def test_trajectory_has_one_pose_per_frame(recorded):

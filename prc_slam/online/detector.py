@@ -1,8 +1,8 @@
 """``OnlineDetector``: the per-scan-line detectors run together on a stream of scans.
 
-Labels per slot: the coarse classes (68 horizontal, 69 vertical, 5 vegetation), overwritten by
-ground (2) and curb (66). The car algorithm (Sec. 7) and the final combination of Sec. 8 will
-add vehicle (65).
+Labels per slot, combined as Sec. 8 says: the coarse classes (68 horizontal, 69 vertical,
+5 vegetation), overwritten by ground (2), curb (66) and vehicle (65); car points behind a
+verified curb keep their coarse class.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from prc_slam import labels as L
+from prc_slam.online.car import CarParams, detect_cars
 from prc_slam.online.coarse import CoarseParams, CoarseResult, coarse_classify
 from prc_slam.online.curb import CurbParams, detect_curbs
 from prc_slam.online.ground import GroundDetector, GroundParams
@@ -26,6 +27,8 @@ class OnlineResult:
     labels: np.ndarray  # uint8 (rows, cols)
     coarse: CoarseResult
     curb_polylines: list[np.ndarray] = field(default_factory=list)
+    car_boxes: list[dict] = field(default_factory=list)
+    car_instances: np.ndarray | None = None
     ground_height: float | None = None
     seconds: float = 0.0
 
@@ -34,10 +37,15 @@ class OnlineDetector:
     """Streaming detectors; the ground height estimate carries over from scan to scan."""
 
     def __init__(
-        self, coarse: CoarseParams | None = None, ground: GroundParams | None = None, curb: CurbParams | None = None
+        self,
+        coarse: CoarseParams | None = None,
+        ground: GroundParams | None = None,
+        curb: CurbParams | None = None,
+        car: CarParams | None = None,
     ) -> None:
         self.coarse_params = coarse or CoarseParams()
         self.curb_params = curb or CurbParams()
+        self.car_params = car or CarParams()
         self.ground = GroundDetector(ground)
 
     def process(self, scan: Scan) -> OnlineResult:
@@ -46,7 +54,11 @@ class OnlineDetector:
         coarse = coarse_classify(scan, self.coarse_params)
         ground = self.ground.process(scan, coarse)
         curbs = detect_curbs(scan, coarse, ground, self.ground.height, self.curb_params)
+        cars = detect_cars(scan, coarse, self.ground.height, curbs.mask, self.car_params)
         labels = coarse.codes.copy()
         labels[ground] = L.GROUND
         labels[curbs.mask] = L.CURB
-        return OnlineResult(labels, coarse, curbs.polylines, self.ground.height, time.perf_counter() - t0)
+        labels[cars.mask & ~curbs.mask] = L.VEHICLE
+        return OnlineResult(
+            labels, coarse, curbs.polylines, cars.boxes, cars.instances, self.ground.height, time.perf_counter() - t0
+        )

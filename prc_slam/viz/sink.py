@@ -14,7 +14,9 @@ Entity paths::
     range_image/range             DepthImage (metres)
     range_image/prc               SegmentationImage of PRC labels
     range_image/online            SegmentationImage of the online detectors' labels
+    world/sensor/online           Points3D, every point, class ids = online detector labels
     world/detections/curbs        LineStrips3D, one polyline per detected curb
+    world/detections/cars         Boxes3D, one oriented box per car instance, labelled
     metrics/...                   Scalars: points in / kept per class, ms per stage, ICP threshold, error
     logs                          TextLog: warnings and skips
 
@@ -116,6 +118,17 @@ class RerunSink:
     def log_classified(self, index: int, scan, labels: np.ndarray, t: float | None = None) -> None:
         """A scan with its PRC labels (slots): raw cloud and range images."""
         self._time(index, t if t is not None else scan.meta.get("frame_time", float(index)))
+        if scan.meta.get("nan_ranges"):
+            self.warn(f"{scan.source}: {scan.meta['nan_ranges']} NaN ranges read as no return")
+        if scan.meta.get("collisions"):
+            self.rec.log(
+                "logs",
+                rr.TextLog(
+                    f"{scan.source}: {scan.meta['collisions']} points share a range-image "
+                    "slot with a nearer point and take its label",
+                    level=rr.TextLogLevel.INFO,
+                ),
+            )
         if index % self.config.every:
             return
         pts = scan.points()
@@ -125,15 +138,36 @@ class RerunSink:
         self.rec.log("range_image/prc", rr.SegmentationImage(labels))
 
     def log_online(self, index: int, scan, result, pose: np.ndarray | None = None) -> None:
-        """Online detector output: ``range_image/online`` and ``world/detections/curbs``
-        (polylines in the world frame given ``pose``, else the sensor frame)."""
+        """Online detector output: ``range_image/online``, the detector labels of every point
+        (``world/sensor/online``), ``world/detections/curbs`` (polylines) and
+        ``world/detections/cars`` (oriented boxes with instance labels), in the world frame given
+        ``pose`` (else the sensor frame)."""
         self._time(index, scan.meta.get("frame_time", float(index)))
         if index % self.config.every:
             return
         self.rec.log("range_image/online", rr.SegmentationImage(result.labels))
+        ids = scan.per_point(result.labels).astype(np.uint16)
+        self.rec.log("world/sensor/online", rr.Points3D(scan.points(), class_ids=ids, radii=0.03))
         pose = np.eye(4) if pose is None else pose
-        strips = [p @ pose[:3, :3].T + pose[:3, 3] for p in result.curb_polylines]
+        rot, t = pose[:3, :3], pose[:3, 3]
+        strips = [p @ rot.T + t for p in result.curb_polylines]
         self.rec.log("world/detections/curbs", rr.LineStrips3D(strips, colors=[L.color_lut()[L.CURB]]))
+        boxes = result.car_boxes
+        centers = np.array([b["center"] for b in boxes]).reshape(-1, 3) @ rot.T + t
+        yaw0 = float(np.arctan2(rot[1, 0], rot[0, 0]))
+        quats = [
+            rr.Quaternion(xyzw=[0.0, 0.0, np.sin((b["yaw"] + yaw0) / 2), np.cos((b["yaw"] + yaw0) / 2)]) for b in boxes
+        ]
+        self.rec.log(
+            "world/detections/cars",
+            rr.Boxes3D(
+                centers=centers,
+                sizes=np.array([b["size"] for b in boxes]).reshape(-1, 3),
+                quaternions=quats,
+                labels=[f"car {i + 1}" for i in range(len(boxes))],
+                class_ids=np.full(len(boxes), L.VEHICLE, np.uint16),
+            ),
+        )
 
     def log_record(self, record, gt_pose: np.ndarray | None = None) -> None:
         """One frame of an odometry comparison (:class:`prc_slam.odometry.compare.FrameRecord`).
@@ -209,20 +243,26 @@ def open_recording(
     web_port: int | None = None,
     grpc_port: int | None = None,
 ) -> tuple[rr.RecordingStream, str | None]:
-    """A recording stream writing to a file, a running viewer, a served web viewer, or a spawned
-    desktop viewer. Returns the stream and, for ``serve_web``, the viewer's address."""
+    """A recording stream writing to any combination of a file, a running viewer and a served
+    web viewer, or to a spawned desktop viewer. Returns the stream and, for ``serve_web``, the
+    viewer's address."""
     rec = rr.RecordingStream(application)
     address = None
-    if rrd is not None:
-        rec.save(rrd, default_blueprint=default_blueprint())
-    elif connect is not None:
-        rec.connect_grpc(connect, default_blueprint=default_blueprint())
-    elif serve_web:
-        grpc_url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=default_blueprint())
-        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=grpc_url)
-        address = f"http://localhost:{web_port or 9090}/?url={grpc_url}"
-    elif spawn:
+    if spawn:
         rec.spawn(default_blueprint=default_blueprint())
-    else:
-        raise ValueError("choose one of rrd, connect, serve_web or spawn")
+        return rec, None
+    sinks: list = []
+    if rrd is not None:
+        sinks.append(rr.FileSink(rrd))
+    if connect is not None:
+        sinks.append(rr.GrpcSink(connect))
+    if serve_web:
+        server = rr.GrpcServerSink(port=grpc_port or 9876)
+        sinks.append(server)
+    if not sinks:
+        raise ValueError("choose at least one of rrd, connect, serve_web or spawn")
+    rec.set_sinks(*sinks, default_blueprint=default_blueprint())
+    if serve_web:
+        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=server.uri)
+        address = f"http://localhost:{web_port or 9090}/?url={server.uri}"
     return rec, address
