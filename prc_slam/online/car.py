@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from prc_slam.online import kernels as K
 from prc_slam.online.coarse import CoarseResult, scan_lines
 from prc_slam.scan import Scan
 
@@ -132,13 +133,8 @@ def car_lines(
                 states[j] = M if j > 0 and states[j - 1] == M else H  # plain T: not part of the chain
         if markov_cusum_trigger(states, A_REGULAR, A_CAR, 1.0) < 0:
             continue
-        pts = np.empty(n_all, np.int64)
-        m = 0
-        for j in range(n_all):
-            if valid[line[j]]:
-                pts[m] = line[j]
-                m += 1
-        pts = pts[:m]
+        pts = K.line_returns(line, valid)
+        m = pts.shape[0]
         # 7.4 high verticals: horizontal distance limit
         limit = np.inf
         run_start = -1

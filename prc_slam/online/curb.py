@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from prc_slam.online import kernels as K
 from prc_slam.online.coarse import CoarseResult, scan_lines
 from prc_slam.prc import kernels as prc_kernels
 from prc_slam.scan import Scan, SpinningSensor
@@ -30,15 +31,8 @@ def possible_curbs(xyz, codes, ground, valid, lines, z_ground, t_high, look_back
     """Part (a): one PC (slot index) per line at most, ``-1`` where there is none."""
     out = np.full(lines.shape[0], -1, np.int64)
     for li in range(lines.shape[0]):
-        pts = np.empty(lines.shape[1], np.int64)
-        m = 0
-        for j in range(lines.shape[1]):
-            s = lines[li, j]
-            if s < 0:
-                break
-            if valid[s]:
-                pts[m] = s
-                m += 1
+        pts = K.line_returns(lines[li], valid)
+        m = pts.shape[0]
         last_g = -1
         for k in range(m):
             if ground[pts[k]]:

@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit
 
 from prc_slam import labels as L
+from prc_slam.online import kernels as K
 from prc_slam.online.coarse import CoarseResult, scan_lines
 from prc_slam.scan import Scan
 
@@ -156,16 +157,8 @@ def ground_lines(
     line_height = np.full(lines.shape[0], np.nan)
     pending = np.zeros(lines.shape[0], np.bool_)  # lines seen before z_d existed
     for li in range(lines.shape[0]):
-        pts = np.empty(lines.shape[1], np.int64)
-        m = 0
-        for j in range(lines.shape[1]):
-            s = lines[li, j]
-            if s < 0:
-                break
-            if valid[s]:
-                pts[m] = s
-                m += 1
-        pts = pts[:m]
+        pts = K.line_returns(lines[li], valid)
+        m = pts.shape[0]
         codes = slot_codes[pts]
         phi = slot_phi[pts].astype(np.float64)
         zs = xyz[pts, 2]

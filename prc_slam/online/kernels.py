@@ -22,6 +22,22 @@ def _angle_deg(a, b):
 
 
 @njit(cache=True, nogil=True)
+def line_returns(line, valid):
+    """Slot indices of the returns of one scan line, in line order (``line`` is ``-1``-padded;
+    slots without a return, the paper's missing points M, are skipped)."""
+    pts = np.empty(line.shape[0], np.int64)
+    m = 0
+    for j in range(line.shape[0]):
+        s = line[j]
+        if s < 0:
+            break
+        if valid[s]:
+            pts[m] = s
+            m += 1
+    return pts[:m]
+
+
+@njit(cache=True, nogil=True)
 def line_statistics(xyz, valid, line, origin, min_step=0.0):
     """Signed angles ``sV`` and line angles ``phi_hat`` of one scan line (Sec. 3).
 
@@ -44,22 +60,8 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0):
     pts : int64 (m,)   slot indices of the returns, in line order
     sv, phi_hat : float64 (m,)
     """
-    n = 0
-    for j in range(line.shape[0]):
-        s = line[j]
-        if s < 0:
-            break
-        if valid[s]:
-            n += 1
-    pts = np.empty(n, np.int64)
-    m = 0
-    for j in range(line.shape[0]):
-        s = line[j]
-        if s < 0:
-            break
-        if valid[s]:
-            pts[m] = s
-            m += 1
+    pts = line_returns(line, valid)
+    n = pts.shape[0]
     sv = np.zeros(n)
     phi_hat = np.zeros(n)
     if n < 2:
