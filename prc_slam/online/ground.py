@@ -32,6 +32,26 @@ HISTORY = 500
 
 
 @njit(cache=True, nogil=True)
+def _track_mode(z, n, start, bandwidth):
+    """Mean shift (flat kernel) from ``start`` over ``z[:n]``: the mode it climbs to."""
+    m = start
+    for _ in range(100):
+        s = 0.0
+        c = 0
+        for j in range(n):
+            if abs(z[j] - m) <= bandwidth:
+                s += z[j]
+                c += 1
+        if c == 0:
+            return m
+        new = s / c
+        if abs(new - m) < 1e-3 * bandwidth:
+            return new
+        m = new
+    return m
+
+
+@njit(cache=True, nogil=True)
 def mean_shift_modes(x, bandwidth):
     """Modes of 1-D samples by mean shift with a flat kernel: every sample climbs to the mean
     of its ``bandwidth`` neighbourhood until it stops; converged points closer than
@@ -39,20 +59,7 @@ def mean_shift_modes(x, bandwidth):
     n = x.shape[0]
     conv = np.empty(n)
     for i in range(n):
-        m = x[i]
-        for _ in range(100):
-            s = 0.0
-            c = 0
-            for j in range(n):
-                if abs(x[j] - m) <= bandwidth:
-                    s += x[j]
-                    c += 1
-            new = s / c
-            if abs(new - m) < 1e-3 * bandwidth:
-                m = new
-                break
-            m = new
-        conv[i] = m
+        conv[i] = _track_mode(x, n, x[i], bandwidth)
     order = np.argsort(conv)
     modes = np.empty(n)
     counts = np.zeros(n, np.int64)
@@ -79,25 +86,6 @@ def single_mode(x, bandwidth):
     lo = _track_mode(x, x.shape[0], x.min(), bandwidth)
     hi = _track_mode(x, x.shape[0], x.max(), bandwidth)
     return abs(hi - lo) < bandwidth / 2
-
-
-@njit(cache=True, nogil=True)
-def _track_mode(z, n, start, bandwidth):
-    m = start
-    for _ in range(100):
-        s = 0.0
-        c = 0
-        for j in range(n):
-            if abs(z[j] - m) <= bandwidth:
-                s += z[j]
-                c += 1
-        if c == 0:
-            return m
-        new = s / c
-        if abs(new - m) < 1e-3 * bandwidth:
-            return new
-        m = new
-    return m
 
 
 @njit(cache=True, nogil=True)
