@@ -402,6 +402,7 @@ def detect(
     detector = OnlineDetector()
     confusion = ConfusionAccumulator()
     have_gt, points, seconds, curbs = False, 0, 0.0, 0
+    cars_found = cars_present = 0
     las_parts: list[tuple[np.ndarray, np.ndarray]] = []
     with _progress() as progress:
         task = progress.add_task("online detectors", total=n)
@@ -421,6 +422,10 @@ def detect(
             if ref is not None:
                 have_gt = True
                 confusion.add(ref, codes)
+            if scan.gt_labels is not None and scan.gt_instance is not None:
+                found, present = vehicles_found(scan.gt_labels, scan.gt_instance, result.labels)
+                cars_found += found
+                cars_present += present
             if las is not None:
                 xyz = scan.points()
                 if scan.gt_pose is not None:
@@ -442,6 +447,8 @@ def detect(
     if have_gt:
         metrics["per_class"] = confusion.per_class()
         metrics["confusion"] = confusion.to_json()
+        # vehicle objects per frame; curb objects need per-curb instances the references lack
+        metrics["objects"] = {"vehicle": {"found": cars_found, "present": cars_present}}
     if las is not None and las_parts:
         write_las(las, np.concatenate([p[0] for p in las_parts]), np.concatenate([p[1] for p in las_parts]))
         console.print(f"wrote {las}")
@@ -453,6 +460,21 @@ def detect(
         print_class_table(metrics, f"online detectors on {input}")
     if json_path is not None:
         _write_json(json_path, metrics)
+
+
+def vehicles_found(
+    gt_labels: np.ndarray, gt_instance: np.ndarray, labels: np.ndarray, min_points: int = 20, share: float = 0.3
+) -> tuple[int, int]:
+    """Vehicle instances of one frame with at least ``min_points`` returns (present) and those
+    with at least ``share`` of their returns labelled vehicle (found)."""
+    from prc_slam import labels as L
+
+    inst = np.where(gt_labels == L.VEHICLE, gt_instance, 0).ravel().astype(np.int64)
+    total = np.bincount(inst, minlength=1)
+    hit = np.bincount(inst, weights=(labels.ravel() == L.VEHICLE), minlength=len(total))
+    present = total >= min_points
+    present[0] = False
+    return int(np.sum(present & (hit >= share * total))), int(present.sum())
 
 
 class SceneKind(str, Enum):
