@@ -321,8 +321,13 @@ def car_instances(car: np.ndarray, xyz: np.ndarray, min_points: int = 20) -> tup
     remap[keep] = np.arange(1, keep.sum() + 1)
     lab = remap[lab]
     boxes = []
-    for i in range(1, int(keep.sum()) + 1):  # one box per car (a handful per frame)
-        pts = xyz[lab == i].astype(np.float64)
+    flat = lab.ravel()
+    members = np.flatnonzero(flat)
+    order = members[np.argsort(flat[members], kind="stable")]
+    cuts = np.flatnonzero(np.diff(flat[order])) + 1
+    pts_all = xyz.reshape(-1, 3).astype(np.float64)
+    for idx in np.split(order, cuts) if len(order) else []:  # one box per car (a handful per frame)
+        pts = pts_all[idx]
         c = pts[:, :2].mean(axis=0)
         cov = np.cov((pts[:, :2] - c).T) if len(pts) > 2 else np.eye(2)
         w, v = np.linalg.eigh(cov)

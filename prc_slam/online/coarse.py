@@ -13,14 +13,26 @@ numbers here; the values below (``CoarseParams``) are ours and are exercised by 
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from numba import config as numba_config
+from numba import njit, prange
 
 from prc_slam import labels as L
 from prc_slam.online import kernels as K
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
+
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    # numba's default tries TBB first and warns when the TBB it finds (pulled in by other
+    # packages) is too old: take OpenMP when numba has it, else its own work queue
+    try:
+        from numba.np.ufunc import omppool  # noqa: F401
+
+        numba_config.THREADING_LAYER = "omp"
+    except ImportError:
+        numba_config.THREADING_LAYER = "workqueue"
 
 
 def _uniform3() -> np.ndarray:
@@ -69,15 +81,15 @@ def scan_lines(scan: Scan) -> np.ndarray:
     raise TypeError(f"no scan-line definition for {type(scan.sensor).__name__}")
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th, min_step):
     n_slots = xyz.shape[0]
     codes = np.zeros(n_slots, np.uint8)
     t_prime = np.zeros(n_slots, np.bool_)
     sv_out = np.zeros(n_slots, np.float32)
     phi_out = np.zeros(n_slots, np.float32)
-    origin = np.zeros(3)
-    for li in range(lines.shape[0]):
+    for li in prange(lines.shape[0]):  # scan lines are independent; each writes only its slots
+        origin = np.zeros(3)
         pts, sv, phi = K.line_statistics(xyz, valid, lines[li], origin, min_step)
         n = pts.shape[0]
         if n == 0:

@@ -111,8 +111,11 @@ def detect_curbs(
     z = xyz[..., 2].ravel()[sel]
     zmin = np.full(n + 1, np.inf)
     zmax = np.full(n + 1, -np.inf)
-    np.minimum.at(zmin, ids, z)
-    np.maximum.at(zmax, ids, z)
+    order = np.argsort(ids, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(ids[order]) != 0])
+    present = ids[order][starts]
+    zmin[present] = np.minimum.reduceat(z[order], starts)
+    zmax[present] = np.maximum.reduceat(z[order], starts)
     has_pc = np.zeros(n + 1, dtype=bool)
     has_pc[regions.ravel()[pc]] = True
     line_of = _line_index(scan).ravel()[sel]
