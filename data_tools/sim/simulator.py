@@ -121,13 +121,14 @@ class Simulator:
                 seed=config.seed,
             )
         else:
-            lateral = -(self.scene.info.get("camber", 0) and 0) + (3.5 if config.scene == "urban" else 0.0)
+            # a walker in the street keeps to the right sidewalk (5-8 m right of the centreline)
+            lateral = -5.95 if config.scene == "urban" else 0.0
             self.trajectory = walking_trajectory(
                 self.scene,
                 duration,
                 speed=config.speed or 1.3,
                 mount_height=self.sensor.mount_height,
-                lateral=-lateral * 1.7,
+                lateral=lateral,
                 seed=config.seed,
             )
         mesh = self.scene.mesh
