@@ -46,6 +46,10 @@ class PRCConfig(BaseModel):
     boundary_votes: int = Field(3, ge=1, description="votes needed to carry a label over a block boundary")
     density_threshold: float = Field(1.0 / 3.0, description="forest ground: column smoothness density, eq. (12)")
     density_stride: int = Field(10, ge=1, description="forest ground: eq. (12) evaluated every n-th column")
+    density_axis: Literal["columns", "rows"] | None = Field(
+        None, description="eq. (12) along block columns (profiler, the paper) or along rings; None: by sensor"
+    )
+    density_window: int = Field(512, ge=1, description="rows axis: columns per density window")
     adaptive: bool = Field(False, description="scale xi_s, xi_p with the expected neighbour spacing")
     adaptive_incidence_deg: float = Field(
         85.0, ge=0.0, lt=90.0, description="adaptive mode: steepest incidence angle the thresholds allow for"

@@ -201,3 +201,18 @@ def test_paper_urban_classes_on_simulated_street():
     assert (res.labels[noise] == L.NOISE).mean() > 0.9  # background-illumination outliers
     bld = gt == L.BUILDING
     assert (res.labels[bld] == L.BUILDING).mean() > 0.6
+
+
+def test_forest_ring_density_for_spinning_sensors():
+    smooth = np.zeros((3, 20), bool)
+    smooth[0, :8] = True  # ring 0: 8/20 = 0.4 > 1/3 -> ground
+    smooth[1, :6] = True  # ring 1: 6/20 = 0.3 -> not
+    smooth[2, 10:14] = True  # ring 2, window of 10: 4/10 in the second window -> ground there only
+    cfg = PRCConfig(mode="forest", density_window=20)
+    g = column_density_ground(smooth, cfg, axis="rows")
+    assert g[0].all() and not g[1].any()
+    g10 = column_density_ground(smooth, PRCConfig(mode="forest", density_window=10), axis="rows")
+    assert not g10[2, :10].any() and g10[2, 10:].all()
+    # a last, shorter window is normalised by its own length
+    g7 = column_density_ground(smooth[:, :14], PRCConfig(mode="forest", density_window=7), axis="rows")
+    assert g7[2, 7:14].all()  # ring 2, columns 7..13: 4 of 7 smooth

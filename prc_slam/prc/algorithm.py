@@ -246,7 +246,8 @@ def prc_block(
         L.BUILDING if urban else L.TRUNK, L.GROUND, L.VEGETATION, L.NOISE, L.UNCLASSIFIED,
     )  # fmt: skip
     if not urban:
-        out[column_density_ground(smooth, config) & supported] = L.GROUND
+        axis = config.density_axis or ("rows" if wrap else "columns")
+        out[column_density_ground(smooth, config, axis) & supported] = L.GROUND
 
     if carry:
         state.last_row = segments[-1].copy()
@@ -272,19 +273,30 @@ def _ground_segment(ids: np.ndarray, areas: np.ndarray, state: PRCState | None) 
     return int(ids[np.argmax(areas)])
 
 
-def column_density_ground(smooth: np.ndarray, config: PRCConfig) -> np.ndarray:
+def column_density_ground(smooth: np.ndarray, config: PRCConfig, axis: str = "columns") -> np.ndarray:
     """Forest ground by the column smoothness density of eq. (12).
 
     ``rho = (1/k) sum_j [p_j in H_b \\ V_b]`` is evaluated on every ``density_stride``-th
     column starting at column 0; a column with ``rho > density_threshold`` and the
-    ``density_stride - 1`` columns after it are declared ground.
+    ``density_stride - 1`` columns after it are declared ground. A profiler's block column is
+    one scan angle over ``k`` successive lines; with ``axis="rows"`` (beyond the paper, for
+    spinning sensors) the same density is taken along one beam's ring over windows of
+    ``density_window`` columns, the spinning sensor's "fixed scan angle over successive
+    firings".
 
     Returns
     -------
     bool (rows, cols)
-        True in the ground columns.
+        True in the ground columns (or ring windows).
     """
     rows, cols = smooth.shape
+    if axis == "rows":
+        w = config.density_window
+        n_win = -(-cols // w)
+        padded = np.zeros((rows, n_win * w), dtype=bool)
+        padded[:, :cols] = smooth
+        rho = padded.reshape(rows, n_win, w).sum(axis=2) / np.minimum(w, cols - np.arange(n_win) * w)[None, :]
+        return np.repeat(rho > config.density_threshold, w, axis=1)[:, :cols]
     stride = config.density_stride
     rho = smooth[:, ::stride].sum(axis=0) / rows
     is_ground = np.repeat(rho > config.density_threshold, stride)[:cols]
