@@ -110,6 +110,36 @@ class Viewer:
                 pass
 
 
+class LasCollector:
+    """Labelled points of every frame (world frame when the frame has a pose), written as one
+    LAS 1.4 file with the frame index in ``point_source_id``; a no-op without a path."""
+
+    def __init__(self, path: Path | None) -> None:
+        self.path = path
+        self.parts: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def add(self, scan, codes: np.ndarray) -> None:
+        if self.path is None:
+            return
+        xyz = scan.points()
+        if scan.gt_pose is not None:
+            xyz = xyz @ scan.gt_pose[:3, :3].T + scan.gt_pose[:3, 3]
+        self.parts.append((xyz, codes))
+
+    def write(self) -> None:
+        if self.path is None or not self.parts:
+            return
+        from data_tools.writers import write_las
+
+        write_las(
+            self.path,
+            np.concatenate([p[0] for p in self.parts]),
+            np.concatenate([p[1] for p in self.parts]),
+            point_source_id=np.concatenate([np.full(len(p[0]), i) for i, p in enumerate(self.parts)]),
+        )
+        console.print(f"wrote {self.path}")
+
+
 RRD_OPT = typer.Option(None, "--rrd", help="write a Rerun recording (.rrd) here")
 CONNECT_OPT = typer.Option(None, "--connect", help="stream to a running Rerun viewer (rerun+http://host:9876/proxy)")
 SERVE_OPT = typer.Option(False, "--serve-web", help="serve the Rerun web viewer on localhost and print its address")
@@ -167,7 +197,7 @@ def classify(
 ) -> None:
     """Classify every frame with PRC; score against ground truth when the input has it."""
     from data_tools import DataError, open_dataset
-    from data_tools.writers import write_label_file, write_las
+    from data_tools.writers import write_label_file
     from prc_slam.classify_run import run_classification
 
     try:
@@ -176,7 +206,7 @@ def classify(
     except (DataError, ValueError) as exc:
         raise _fail(str(exc)) from exc
     n = len(dataset) if max_frames is None else min(max_frames, len(dataset))
-    las_parts: list[tuple[np.ndarray, np.ndarray, int]] = []
+    collector = LasCollector(las)
     viewer = Viewer(rrd, connect, serve_web, log_every)
 
     done = [0]
@@ -189,11 +219,7 @@ def classify(
             if viewer.sink is not None:
                 viewer.sink.log_classified(done[0], frame.scan, frame.labels)
             done[0] += 1
-            if las is not None:
-                xyz = frame.scan.points()
-                if frame.scan.gt_pose is not None:
-                    xyz = xyz @ frame.scan.gt_pose[:3, :3].T + frame.scan.gt_pose[:3, 3]
-                las_parts.append((xyz, frame.point_labels(), len(las_parts)))
+            collector.add(frame.scan, frame.point_labels())
 
         try:
             metrics = run_classification(
@@ -208,14 +234,7 @@ def classify(
     viewer.close()
     metrics["input"] = str(input)
     metrics["config"] = cfg.model_dump(mode="json")
-    if las is not None and las_parts:
-        write_las(
-            las,
-            np.concatenate([p[0] for p in las_parts]),
-            np.concatenate([p[1] for p in las_parts]),
-            point_source_id=np.concatenate([np.full(len(p[0]), p[2]) for p in las_parts]),
-        )
-        console.print(f"wrote {las}")
+    collector.write()
     _report(metrics, f"PRC on {input}")
     if json_path is not None:
         _write_json(json_path, metrics, Config(prc=cfg))
@@ -389,7 +408,7 @@ def detect(
     """Online per-scan-line detectors (paper 001): horizontal / vertical / vegetation, ground and
     curbs, with curb polylines; scored against ground truth when the input has it."""
     from data_tools import DataError, open_dataset
-    from data_tools.writers import write_label_file, write_las
+    from data_tools.writers import write_label_file
     from prc_slam.evaluation import ConfusionAccumulator
     from prc_slam.online import OnlineDetector
 
@@ -403,7 +422,7 @@ def detect(
     confusion = ConfusionAccumulator()
     have_gt, points, seconds, curbs = False, 0, 0.0, 0
     cars_found = cars_present = 0
-    las_parts: list[tuple[np.ndarray, np.ndarray]] = []
+    collector = LasCollector(las)
     with _progress() as progress:
         task = progress.add_task("online detectors", total=n)
         for i in range(n):
@@ -426,11 +445,7 @@ def detect(
                 found, present = vehicles_found(scan.gt_labels, scan.gt_instance, result.labels)
                 cars_found += found
                 cars_present += present
-            if las is not None:
-                xyz = scan.points()
-                if scan.gt_pose is not None:
-                    xyz = xyz @ scan.gt_pose[:3, :3].T + scan.gt_pose[:3, 3]
-                las_parts.append((xyz, codes))
+            collector.add(scan, codes)
             if viewer.sink is not None:
                 viewer.sink.log_classified(i, scan, result.labels)
                 viewer.sink.log_online(i, scan, result, scan.gt_pose)
@@ -449,9 +464,7 @@ def detect(
         metrics["confusion"] = confusion.to_json()
         # vehicle objects per frame; curb objects need per-curb instances the references lack
         metrics["objects"] = {"vehicle": {"found": cars_found, "present": cars_present}}
-    if las is not None and las_parts:
-        write_las(las, np.concatenate([p[0] for p in las_parts]), np.concatenate([p[1] for p in las_parts]))
-        console.print(f"wrote {las}")
+    collector.write()
     console.print(
         f"{n} frames, {points} points, detectors {seconds:.2f} s"
         + (f" ({points / seconds / 1e6:.2f} M points/s)" if seconds > 0 else "")

@@ -209,44 +209,23 @@ class GroundDetector:
         """The dominant ground height ``z_d`` (sensor frame), once known."""
         return self.zd if self.have_zd else None
 
+    def _run(self, args: tuple, lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`ground_lines` on ``lines`` from the current state; updates the state."""
+        p = self.params
+        ground, _, pending, self.z_hist, self.n_hist, self.zd, self.have_zd = ground_lines(
+            *args, lines, self.z_hist, self.n_hist, self.zd, self.have_zd,
+            p.run_len, p.phi_bandwidth, p.z_bandwidth, p.rel_tolerance, p.grow_tolerance, p.n_init,
+        )  # fmt: skip
+        return ground, pending
+
     def process(self, scan: Scan, coarse: CoarseResult) -> np.ndarray:
         """Ground mask (rows, cols) of one scan, given its coarse classification."""
-        p = self.params
         xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
         lines = scan_lines(scan)
         args = (xyz, coarse.codes.ravel(), coarse.phi_hat.ravel(), scan.valid.ravel())
         had = self.have_zd
-        out = ground_lines(
-            *args,
-            lines,
-            self.z_hist,
-            self.n_hist,
-            self.zd,
-            self.have_zd,
-            p.run_len,
-            p.phi_bandwidth,
-            p.z_bandwidth,
-            p.rel_tolerance,
-            p.grow_tolerance,
-            p.n_init,
-        )
-        ground, _, pending, self.z_hist, self.n_hist, self.zd, self.have_zd = out
+        ground, pending = self._run(args, lines)
         if self.have_zd and not had and pending.any():  # start again from the first scan line
-            again = ground_lines(
-                *args,
-                lines[pending],
-                self.z_hist,
-                self.n_hist,
-                self.zd,
-                True,
-                p.run_len,
-                p.phi_bandwidth,
-                p.z_bandwidth,
-                p.rel_tolerance,
-                p.grow_tolerance,
-                p.n_init,
-            )
-            ground |= again[0]
-            self.z_hist, self.n_hist, self.zd = again[3], again[4], again[5]
+            ground |= self._run(args, lines[pending])[0]
         assert L.HORIZONTAL == 68  # code tested by the kernel
         return ground.reshape(scan.shape)
