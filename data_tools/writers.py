@@ -86,3 +86,60 @@ def write_ply(path: str | Path, xyz: np.ndarray, labels: np.ndarray | None = Non
     with path.open("wb") as f:
         f.write(header.encode("ascii"))
         f.write(rec.tobytes())
+
+
+class ClassSplitWriter:
+    """Segregation into sub-clouds (paper 004): one combined LAS 1.4 file with every point and
+    one LAS 1.4 file per class present (``<class name>.las``), written chunk by chunk.
+
+    Use as a context manager; ``write(xyz, codes)`` may be called any number of times.
+    """
+
+    def __init__(self, out_dir: str | Path, combined: str = "map_classified.las") -> None:
+        self.out_dir = Path(out_dir)
+        self.combined_name = combined
+        self._writers: dict[str, laspy.LasWriter] = {}
+        self._header: laspy.LasHeader | None = None
+        self.counts: dict[str, int] = {}
+
+    def __enter__(self) -> ClassSplitWriter:
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for w in self._writers.values():
+            w.close()
+        self._writers.clear()
+
+    @property
+    def paths(self) -> dict[str, Path]:
+        """File per sub-cloud written so far (``"all"`` for the combined one)."""
+        return {k: self.out_dir / (self.combined_name if k == "all" else f"{k}.las") for k in self.counts}
+
+    def _writer(self, name: str) -> laspy.LasWriter:
+        if name not in self._writers:
+            path = self.out_dir / (self.combined_name if name == "all" else f"{name}.las")
+            self._writers[name] = laspy.open(path, mode="w", header=self._header)
+        return self._writers[name]
+
+    def write(self, xyz: np.ndarray, codes: np.ndarray) -> None:
+        xyz = np.asarray(xyz, dtype=np.float64)
+        codes = np.asarray(codes, dtype=np.uint8)
+        if xyz.ndim != 2 or xyz.shape[1] != 3 or codes.shape != (len(xyz),):
+            raise DataError(f"{self.out_dir}: {codes.shape} codes for points of shape {xyz.shape}")
+        ok = np.isfinite(xyz).all(axis=1)  # non-finite points carry no_return and no coordinates
+        xyz, codes = xyz[ok], codes[ok]
+        if len(xyz) == 0:
+            return
+        if self._header is None:
+            self._header = laspy.LasHeader(point_format=6, version="1.4")
+            self._header.scales = np.array([0.001, 0.001, 0.001])
+            self._header.offsets = np.floor(xyz.min(axis=0))
+        for name, sel in [("all", slice(None))] + [
+            (L.CODE_TO_NAME.get(int(c), f"code_{c}"), codes == c) for c in np.unique(codes)
+        ]:
+            rec = laspy.ScaleAwarePointRecord.zeros(len(codes[sel]), header=self._header)
+            rec.x, rec.y, rec.z = xyz[sel, 0], xyz[sel, 1], xyz[sel, 2]
+            rec.classification = codes[sel]
+            self._writer(name).write_points(rec)
+            self.counts[name] = self.counts.get(name, 0) + len(rec)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from enum import Enum
 from pathlib import Path
 from typing import Any
@@ -271,7 +272,13 @@ def _run_config(preset: Preset, config_path: Path | None) -> Config:
 
 
 def _compare(
-    input: Path, variants: list[str], cfg: Config, fmt: str | None, max_frames: int | None, viewer: Viewer | None = None
+    input: Path,
+    variants: list[str],
+    cfg: Config,
+    fmt: str | None,
+    max_frames: int | None,
+    viewer: Viewer | None = None,
+    also: Callable[[Any], None] | None = None,
 ):
     from data_tools import open_dataset
     from prc_slam.odometry.compare import run_compare
@@ -286,6 +293,8 @@ def _compare(
             progress.advance(task)
             if sink is not None:
                 sink.log_record(record, gt_pose=record.frame.scan.gt_pose)
+            if also is not None:
+                also(record)
 
         result = run_compare((dataset[i] for i in range(n)), cfg, variants, on_frame=on_frame)
     if viewer is not None:
@@ -321,18 +330,28 @@ def compare(
     serve_web: bool = SERVE_OPT,
     log_every: int = EVERY_OPT,
     serve_seconds: float | None = SERVE_SECONDS_OPT,
+    mapclass: bool = typer.Option(False, "--mapclass", help="also classify the run's map (paper 004) vs PRC"),
+    mapclass_every: int = typer.Option(5, min=1, help="with --mapclass: accumulate every n-th frame"),
 ) -> None:
     """Run odometry variants side by side in one process (same KISS-ICP settings) and write
-    report.md, metrics.json, trajectories (KITTI and TUM), the config used and plots."""
-    from data_tools import DataError
+    report.md, metrics.json, trajectories (KITTI and TUM), the config used and plots. With
+    ``--mapclass``: accumulate the map at the PRC variant's poses, classify it after
+    registration and report the agreement of PRC labels with it (mapclass.json, report.md)."""
+    from data_tools import DataError, open_dataset
     from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
     from prc_slam.report import write_compare_outputs
 
     names = [v.strip() for v in variants.split(",") if v.strip()]
+    prc_labels: dict[int, np.ndarray] = {}
+
+    def keep_labels(record) -> None:
+        if mapclass and record.index % mapclass_every == 0 and record.frame.labels is not None:
+            prc_labels[record.index] = record.frame.point_labels()
+
     try:
         cfg = _run_config(preset, config)
         viewer = Viewer(rrd, connect, serve_web, log_every, serve_seconds=serve_seconds)
-        result = _compare(input, names, cfg, fmt, max_frames, viewer)
+        result = _compare(input, names, cfg, fmt, max_frames, viewer, also=keep_labels)
     except (DataError, ValueError) as exc:
         raise _fail(str(exc)) from exc
     metrics = write_compare_outputs(
@@ -340,6 +359,24 @@ def compare(
     )
     print_variant_table(metrics, f"odometry on {input}")
     console.print(f"wrote {out}/report.md, metrics.json, trajectories and trajectories.png")
+    if mapclass:
+        from prc_slam.mapclass.tiles import array_chunks
+        from prc_slam.report import mapclass_section
+
+        variant = next((v for v in names if v != "raw"), names[0])
+        dataset = open_dataset(input, fmt)
+        n = len(result.times)
+        cloud = _map_from_dataset(dataset, n, mapclass_every, result.estimate_in_world(variant), prc_labels or None)
+        console.print(f"map: {len(cloud):,} points from every {mapclass_every}th frame at the {variant} poses")
+        mc = _mapclass_outputs(
+            lambda: array_chunks(cloud.points), len(cloud), cfg, out / "mapclass", None, 6.0,
+            cloud.attributes.get("reference"), cloud.attributes.get("instance"), cloud.attributes.get("prc"),
+        )  # fmt: skip
+        mc["poses"] = variant
+        _write_json(out / "mapclass.json", mc)
+        with (out / "report.md").open("a") as f:
+            f.write(mapclass_section(mc))
+        _print_mapclass(mc, "map classification")
 
 
 @app.command()
@@ -409,7 +446,8 @@ def detect(
     curbs, with curb polylines; scored against ground truth when the input has it."""
     from data_tools import DataError, open_dataset
     from data_tools.writers import write_label_file
-    from prc_slam.evaluation import ConfusionAccumulator
+    from prc_slam import labels as L
+    from prc_slam.evaluation import ConfusionAccumulator, objects_found
     from prc_slam.online import OnlineDetector
 
     try:
@@ -442,7 +480,7 @@ def detect(
                 have_gt = True
                 confusion.add(ref, codes)
             if scan.gt_labels is not None and scan.gt_instance is not None:
-                found, present = vehicles_found(scan.gt_labels, scan.gt_instance, result.labels)
+                found, present = objects_found(scan.gt_labels, scan.gt_instance, result.labels, L.VEHICLE)
                 cars_found += found
                 cars_present += present
             collector.add(scan, codes)
@@ -475,19 +513,137 @@ def detect(
         _write_json(json_path, metrics)
 
 
-def vehicles_found(
-    gt_labels: np.ndarray, gt_instance: np.ndarray, labels: np.ndarray, min_points: int = 20, share: float = 0.3
-) -> tuple[int, int]:
-    """Vehicle instances of one frame with at least ``min_points`` returns (present) and those
-    with at least ``share`` of their returns labelled vehicle (found)."""
-    from prc_slam import labels as L
+class Normals(str, Enum):
+    voxels = "voxels"
+    points = "points"
 
-    inst = np.where(gt_labels == L.VEHICLE, gt_instance, 0).ravel().astype(np.int64)
-    total = np.bincount(inst, minlength=1)
-    hit = np.bincount(inst, weights=(labels.ravel() == L.VEHICLE), minlength=len(total))
-    present = total >= min_points
-    present[0] = False
-    return int(np.sum(present & (hit >= share * total))), int(present.sum())
+
+def _map_from_dataset(
+    dataset, n: int, every: int, poses: Path | np.ndarray | None, prc: dict[int, np.ndarray] | None = None
+):
+    """Accumulate every ``every``-th of the first ``n`` frames at the given poses (an array, a
+    KITTI pose file, or None for the sequence's ground truth), carrying reference labels and
+    instances when present and PRC labels for the frames in ``prc``."""
+    from data_tools.kitti import read_kitti_poses
+    from prc_slam.mapclass import accumulate
+
+    source = "ground truth" if poses is None else str(poses) if isinstance(poses, Path) else "the estimate"
+    if isinstance(poses, Path):
+        poses = read_kitti_poses(poses)
+    elif poses is None:
+        poses = getattr(dataset, "poses", None)
+    if poses is None:
+        raise ValueError("the input has no ground-truth poses; give --poses (KITTI format)")
+    if len(poses) < n:
+        raise ValueError(f"{source}: {len(poses)} poses for {n} frames")
+    times = getattr(dataset, "times", None)
+    times = np.arange(n) * 0.1 if times is None else np.asarray(times, dtype=float)
+
+    def frames():
+        for i in range(0, n, every):
+            scan = dataset[i]
+            extra = {}
+            ref = scan.reference_labels()
+            if ref is not None:
+                extra["reference"] = ref
+                if scan.gt_instance is not None:
+                    extra["instance"] = scan.per_point(scan.gt_instance)
+            if prc is not None and i in prc:
+                extra["prc"] = prc[i]
+            yield i, scan, extra
+
+    return accumulate(frames(), np.asarray(poses)[:n], times[:n])
+
+
+def _mapclass_outputs(points_source, n_points: int, cfg: Config, out: Path, tile: float | None, margin: float,
+                      reference=None, instance=None, prc=None) -> dict[str, Any]:  # fmt: skip
+    """Classify, write the per-class LAS files, score; returns the metrics."""
+    from data_tools.writers import ClassSplitWriter
+    from prc_slam.mapclass_run import prc_agreement, run_mapclass, score_map
+
+    out.mkdir(parents=True, exist_ok=True)
+    with _progress() as progress:
+        task = progress.add_task("map classification (tiles)", total=None)
+        labels, metrics = run_mapclass(
+            points_source, n_points, cfg.mapclass, tile, margin,
+            progress=lambda done, total: progress.update(task, completed=done, total=total),
+        )  # fmt: skip
+    with ClassSplitWriter(out) as writer:
+        start = 0
+        for chunk in points_source():
+            writer.write(chunk, labels[start : start + len(chunk)])
+            start += len(chunk)
+    metrics["files"] = {k: str(v) for k, v in writer.paths.items()}
+    if reference is not None:
+        metrics.update(score_map(labels, reference, instance))
+    if prc is not None:
+        metrics["prc_vs_map"] = prc_agreement(prc, labels)
+    return metrics
+
+
+def _print_mapclass(metrics: dict[str, Any], title: str) -> None:
+    console.print(
+        f"{metrics['points']:,} points in {metrics['seconds']:.2f} s ({metrics['points_per_s'] / 1e6:.2f} M points/s)"
+        + (f", {metrics['tile']:g} m tiles" if metrics["tile"] else "")
+    )
+    console.print("stages (s): " + ", ".join(f"{k} {v:.2f}" for k, v in metrics["seconds_per_stage"].items()))
+    console.print("points per class: " + ", ".join(f"{k} {v:,}" for k, v in metrics["counts"].items()))
+    if "per_class" in metrics:
+        print_class_table(metrics, title)
+    for name, o in metrics.get("objects", {}).items():
+        console.print(f"{name} objects found: {o['found']} of {o['present']}")
+    if "prc_vs_map" in metrics:
+        print_class_table(metrics["prc_vs_map"], "PRC labels against the map classification")
+
+
+@app.command()
+def mapclass(
+    input: Path = typer.Argument(..., help="cloud file (LAS/LAZ, PLY, PCD, NPY) or a sequence to accumulate"),
+    out: Path = typer.Option(Path("out/mapclass"), help="output directory: one LAS 1.4 per class + combined"),
+    json_path: Path | None = typer.Option(None, "--json", help="write the metrics JSON here"),
+    config: Path | None = typer.Option(None, help="YAML config (its mapclass section)"),
+    normals: Normals | None = typer.Option(None, help="normals/segmentation per voxel or per point (k-NN)"),
+    paper: bool = typer.Option(False, "--paper", help="the paper's steps only (our additions off)"),
+    tile: float | None = typer.Option(
+        None, min=0.0, help="tile side (m); 0: one piece; default: tiles above 12 M points"
+    ),
+    margin: float = typer.Option(6.0, min=0.0, help="context around each tile (m)"),
+    fmt: str | None = typer.Option(None, "--format", help="sequence format (default: detected)"),
+    max_frames: int | None = typer.Option(None, help="sequence: accumulate only the first N frames"),
+    every: int = typer.Option(1, min=1, help="sequence: accumulate every n-th frame"),
+    poses: Path | None = typer.Option(None, help="sequence: poses (KITTI format) instead of ground truth"),
+) -> None:
+    """Classify a registered map after registration (paper 004) and segregate it into
+    per-class LAS files; scored against reference labels when a sequence has them."""
+    from data_tools import DataError, open_dataset
+    from data_tools.clouds import cloud_chunks, cloud_size, is_cloud_file
+    from prc_slam.mapclass import paper_config
+    from prc_slam.mapclass.tiles import array_chunks
+
+    cfg = Config.from_yaml(config) if config is not None else Config()
+    if paper:
+        cfg.mapclass = paper_config().model_copy(update={"normals": cfg.mapclass.normals})
+    if normals is not None:
+        cfg.mapclass.normals = normals.value
+    try:
+        if is_cloud_file(input):
+            metrics = _mapclass_outputs(lambda: cloud_chunks(input), cloud_size(input), cfg, out, tile, margin)
+        else:
+            dataset = open_dataset(input, fmt)
+            n = len(dataset) if max_frames is None else min(max_frames, len(dataset))
+            cloud = _map_from_dataset(dataset, n, every, poses)
+            console.print(f"accumulated {len(cloud):,} points from {len(range(0, n, every))} frames")
+            metrics = _mapclass_outputs(
+                lambda: array_chunks(cloud.points), len(cloud), cfg, out, tile, margin,
+                cloud.attributes.get("reference"), cloud.attributes.get("instance"),
+            )  # fmt: skip
+    except (DataError, ValueError) as exc:
+        raise _fail(str(exc)) from exc
+    metrics["input"] = str(input)
+    _print_mapclass(metrics, f"map classification of {input}")
+    console.print(f"wrote {out}/map_classified.las and one LAS per class")
+    if json_path is not None:
+        _write_json(json_path, metrics, cfg)
 
 
 class SceneKind(str, Enum):

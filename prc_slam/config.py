@@ -13,6 +13,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam.filtering import FilterConfig
+from prc_slam.mapclass.classify import MapClassConfig
 from prc_slam.odometry.kiss import OdometryConfig
 
 
@@ -92,6 +93,7 @@ class Config(BaseModel):
     prc: PRCConfig = Field(default_factory=PRCConfig)
     filter: FilterConfig = Field(default_factory=FilterConfig)
     odometry: OdometryConfig = Field(default_factory=OdometryConfig)
+    mapclass: MapClassConfig = Field(default_factory=MapClassConfig)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Config:

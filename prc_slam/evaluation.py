@@ -71,6 +71,33 @@ class ConfusionAccumulator:
         }
 
 
+def objects_found(
+    reference: np.ndarray,
+    instance: np.ndarray,
+    predicted: np.ndarray,
+    code: int,
+    min_points: int = 20,
+    share: float = 0.3,
+) -> tuple[int, int]:
+    """Object-level counts of one class.
+
+    Instances of ``code`` (reference label and instance id per point) with at least
+    ``min_points`` points are present; those with at least ``share`` of their points predicted
+    as ``code`` are found.
+
+    Returns
+    -------
+    found, present : int
+    """
+    reference = np.asarray(reference).ravel()
+    inst = np.where(reference == code, np.asarray(instance).ravel(), 0).astype(np.int64)
+    total = np.bincount(inst, minlength=1)
+    hit = np.bincount(inst, weights=np.asarray(predicted).ravel() == code, minlength=len(total))
+    present = total >= min_points
+    present[0] = False
+    return int(np.sum(present & (hit >= share * total))), int(present.sum())
+
+
 # ---- trajectories ------------------------------------------------------------------------
 
 

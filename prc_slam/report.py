@@ -117,3 +117,37 @@ def write_compare_outputs(
     (out / "report.md").write_text(markdown_report(result, metrics, title))
     plot_trajectories(result, out / "trajectories.png")
     return metrics
+
+
+def mapclass_section(mc: dict[str, Any]) -> str:
+    """Markdown for ``compare --mapclass``: the map classification and PRC's agreement with it."""
+
+    def table(per_class: dict[str, dict[str, Any]]) -> list[str]:
+        rows = ["| class | support | precision | recall | f1 |", "|---|---|---|---|---|"]
+        for name, s in per_class.items():
+            vals = [_fmt(s[k]) if s[k] is not None else "-" for k in ("precision", "recall", "f1")]
+            rows.append(f"| {name} | {s['support']:,} | " + " | ".join(vals) + " |")
+        return rows
+
+    lines = [
+        "",
+        "## Map classification after registration (paper 004)",
+        "",
+        f"{mc['points']:,} map points at the `{mc['poses']}` poses, classified in {mc['seconds']:.2f} s "
+        f"({mc['points_per_s'] / 1e6:.2f} M points/s). Points per class: "
+        + ", ".join(f"{k} {v:,}" for k, v in mc["counts"].items()),
+        "",
+    ]
+    if "per_class" in mc:
+        lines += ["Against the reference labels:", "", *table(mc["per_class"]), ""]
+    for name, o in mc.get("objects", {}).items():
+        lines.append(f"- {name} objects found: {o['found']} of {o['present']}")
+    if "prc_vs_map" in mc:
+        lines += [
+            "",
+            "PRC labels scored against the map classification:",
+            "",
+            *table(mc["prc_vs_map"]["per_class"]),
+            "",
+        ]
+    return "\n".join(lines) + "\n"

@@ -115,3 +115,98 @@ def test_ply_writer(tmp_path):
     rec = np.frombuffer(body, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("label", "u1")])
     np.testing.assert_array_equal(np.column_stack([rec["x"], rec["y"], rec["z"]]), xyz)
     assert rec["label"].tolist() == [2, 5, 6, 7]
+
+
+STREET_GROUND_POINTS = 200 * 200
+
+
+def _street_cloud(n_side: int = 200) -> np.ndarray:
+    """A small map: a 12 m ground plane and a 5 m wall along one side (6 cm spacing)."""
+    g = np.linspace(0, 12, n_side)
+    x, y = np.meshgrid(g, g, indexing="ij")
+    ground = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    z = np.linspace(0, 5, 80)
+    xw, zw = np.meshgrid(g, z, indexing="ij")
+    wall = np.column_stack([xw.ravel(), np.full(xw.size, 12.0), zw.ravel()])
+    return np.concatenate([ground, wall])
+
+
+def test_mapclass_on_cloud_files_segregates_every_point(tmp_path):
+    from data_tools.writers import write_ply
+
+    pts = _street_cloud()
+    write_ply(tmp_path / "map.ply", pts)
+    out = tmp_path / "out"
+    res = runner.invoke(
+        app, ["mapclass", str(tmp_path / "map.ply"), "--out", str(out), "--json", str(tmp_path / "m.json")]
+    )
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["points"] == len(pts) == sum(m["counts"].values())
+    combined = laspy.read(out / "map_classified.las")
+    assert combined.header.version.minor == 4 and len(combined.points) == len(pts)
+    per_class = {p.stem: laspy.read(p) for p in out.glob("*.las") if p.stem != "map_classified"}
+    assert sum(len(c.points) for c in per_class.values()) == len(pts)
+    for name, las in per_class.items():
+        assert set(np.unique(las.classification)) == {m_code(name)}
+    assert m["counts"]["ground"] > 0.9 * STREET_GROUND_POINTS and m["counts"]["building"] > 0.8 * (
+        len(pts) - STREET_GROUND_POINTS
+    )
+    # the combined LAS as input, tiled: same number of points, border effects small
+    res = runner.invoke(
+        app,
+        [
+            "mapclass",
+            str(out / "map_classified.las"),
+            "--tile",
+            "5",
+            "--out",
+            str(tmp_path / "o2"),
+            "--json",
+            str(tmp_path / "t.json"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    t = json.loads((tmp_path / "t.json").read_text())
+    assert t["points"] == len(pts) and t["tile"] == 5.0
+    again = laspy.read(tmp_path / "o2" / "map_classified.las")
+    assert np.mean(np.asarray(again.classification) != np.asarray(combined.classification)) < 0.1
+
+
+def m_code(name: str) -> int:
+    from prc_slam import labels as L
+
+    return L.NAME_TO_CODE[name]
+
+
+def test_mapclass_reports_bad_files_cleanly(tmp_path):
+    from data_tools.writers import write_las
+
+    write_las(tmp_path / "a.las", _street_cloud(20), np.zeros(20 * 20 + 20 * 80, np.uint8))
+    data = (tmp_path / "a.las").read_bytes()
+    (tmp_path / "cut.las").write_bytes(data[: len(data) // 2])
+    res = runner.invoke(app, ["mapclass", str(tmp_path / "cut.las"), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2 and "cut.las" in res.output
+    np.save(tmp_path / "bad.npy", np.zeros((10, 2)))
+    res = runner.invoke(app, ["mapclass", str(tmp_path / "bad.npy"), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2 and "bad.npy" in res.output and "(N, 3)" in res.output
+    res = runner.invoke(app, ["mapclass", str(tmp_path / "nothing"), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2
+
+
+def test_mapclass_on_a_sequence_and_compare_mapclass(tmp_path):
+    res = runner.invoke(app, ["simulate", "--out", str(tmp_path / "sim"), "--frames", "4"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(
+        app, ["mapclass", str(tmp_path / "sim"), "--out", str(tmp_path / "mc"), "--json", str(tmp_path / "m.json")]
+    )
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["per_class"]["ground"]["recall"] > 0.9 and set(m["objects"]) == {"vehicle", "pole"}
+    res = runner.invoke(
+        app, ["compare", str(tmp_path / "sim"), "--out", str(tmp_path / "cmp"), "--mapclass", "--mapclass-every", "2"]
+    )
+    assert res.exit_code == 0, res.output
+    mc = json.loads((tmp_path / "cmp" / "mapclass.json").read_text())
+    assert mc["poses"] == "prc" and mc["prc_vs_map"]["per_class"]["ground"]["support"] > 0
+    assert "Map classification after registration" in (tmp_path / "cmp" / "report.md").read_text()

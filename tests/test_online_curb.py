@@ -106,10 +106,10 @@ def test_detect_command_writes_labels_json_and_recording(tmp_path):
 
 
 def test_vehicle_objects_found_hand_computed():
-    from prc_slam.cli import vehicles_found
+    from prc_slam.evaluation import objects_found
 
     gt = np.array([[65, 65, 65, 2], [65, 65, 0, 0], [65, 0, 0, 0]])
     inst = np.array([[1, 1, 1, 0], [2, 2, 0, 0], [3, 0, 0, 0]])
     lab = np.array([[65, 0, 0, 2], [0, 0, 0, 0], [65, 0, 0, 0]])
     # car 1: 1 of 3 returns (>= 30 %) found; car 2: 0 of 2 missed; car 3: 1 return, too small to count
-    assert vehicles_found(gt, inst, lab, min_points=2, share=0.3) == (1, 2)
+    assert objects_found(gt, inst, lab, 65, min_points=2, share=0.3) == (1, 2)

@@ -1,0 +1,96 @@
+"""Point-cloud files for map classification: LAS/LAZ (streamed in chunks with laspy), PLY and
+PCD (Open3D), NPY (an ``(N, 3)`` array, memory-mapped).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from data_tools.errors import DataError
+
+CLOUD_SUFFIXES = (".las", ".laz", ".ply", ".pcd", ".npy")
+
+
+def is_cloud_file(path: str | Path) -> bool:
+    return Path(path).is_file() and Path(path).suffix.lower() in CLOUD_SUFFIXES
+
+
+def _check(path: Path, xyz: np.ndarray) -> np.ndarray:
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise DataError(f"{path}: expected (N, 3) coordinates, got shape {xyz.shape}")
+    return xyz
+
+
+def _open3d_points(path: Path) -> np.ndarray:
+    import open3d as o3d
+
+    cloud = o3d.io.read_point_cloud(str(path))
+    xyz = np.asarray(cloud.points, dtype=np.float64)
+    if len(xyz) == 0 and path.stat().st_size > 0:
+        # Open3D prints a warning and returns an empty cloud for unreadable files
+        head = path.read_bytes()[:64]
+        if not (head.startswith(b"ply") or head.lstrip().startswith((b"#", b"VERSION", b"FIELDS"))):
+            raise DataError(f"{path}: not a readable {path.suffix[1:].upper()} file")
+    return xyz
+
+
+def cloud_size(path: str | Path) -> int:
+    """Number of points in a cloud file."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in (".las", ".laz"):
+        import laspy
+
+        try:
+            with laspy.open(path) as f:
+                return int(f.header.point_count)
+        except (laspy.LaspyException, ValueError, OSError) as e:
+            raise DataError(f"{path}: not a readable LAS file ({e})") from e
+    return sum(len(c) for c in cloud_chunks(path))
+
+
+def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarray]:
+    """The cloud's coordinates as ``float64 (n, 3)`` chunks, in file order.
+
+    LAS/LAZ and NPY files are read chunk by chunk (NPY memory-mapped); PLY and PCD are read
+    whole by Open3D and then cut.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such file")
+    suffix = path.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise DataError(f"{path}: unknown cloud format {suffix!r}; use one of {', '.join(CLOUD_SUFFIXES)}")
+    if suffix in (".las", ".laz"):
+        import laspy
+
+        try:
+            with laspy.open(path) as f:
+                expected = int(f.header.point_count)
+                seen = 0
+                for pts in f.chunk_iterator(chunk):
+                    seen += len(pts)
+                    yield np.column_stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)])
+        except (laspy.LaspyException, ValueError, OSError) as e:
+            raise DataError(f"{path}: not a readable LAS file ({e})") from e
+        if seen != expected:
+            raise DataError(f"{path}: header announces {expected} points, file holds {seen} (truncated?)")
+        return
+    if suffix == ".npy":
+        try:
+            xyz = _check(path, np.load(path, mmap_mode="r"))
+        except ValueError as e:
+            raise DataError(f"{path}: not a readable .npy array ({e})") from e
+    else:
+        xyz = _check(path, _open3d_points(path))
+    for i in range(0, len(xyz), chunk):
+        yield np.asarray(xyz[i : i + chunk], dtype=np.float64)
+
+
+def read_cloud(path: str | Path) -> np.ndarray:
+    """The whole cloud, ``float64 (N, 3)``."""
+    parts = list(cloud_chunks(path))
+    return np.concatenate(parts) if parts else np.zeros((0, 3))

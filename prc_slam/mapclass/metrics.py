@@ -1,0 +1,276 @@
+"""Per-point metrics of paper 004, Sec. 3: local point density, normals and smoothness-constraint
+region growing (segment id and size), segment density, verticality.
+
+Two formulations of the normals and the segmentation:
+
+* ``"voxels"`` (default, the paper's Sec. 7 speed-up "voxel-based metrics ... applied to all
+  points in the respective voxel"): one covariance per small voxel from the points of its 3x3x3
+  neighbourhood, region growing over 26-connected voxels; every point takes its voxel's normal
+  and segment.
+* ``"points"`` (the paper's Sec. 5 description, PCL-style): covariance of each point's ``k``
+  nearest neighbours (Hoppe et al.), region growing over the k-NN graph (Rabbani et al.).
+
+Both grow regions as PCL's ``RegionGrowing`` does: seeds in order of increasing curvature, a
+neighbour joins when its normal is within ``theta`` of the current seed's, and becomes a seed
+itself when its curvature is below ``max_curvature``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from prc_slam.mapclass.voxels import VoxelGrid, find
+
+
+def local_density(points: np.ndarray, voxel: float) -> tuple[np.ndarray, VoxelGrid]:
+    """Sec. 3.1: points in the 3x3x3 voxels around a point's voxel per cubic metre.
+
+    Returns
+    -------
+    density : float (N,)
+        Points per m^3.
+    grid : VoxelGrid
+        The density grid (reused by the verticality).
+    """
+    grid = VoxelGrid.build(points, voxel)
+    per_voxel = grid.neighbourhood_sum(grid.counts) / (27.0 * voxel**3)
+    return per_voxel[grid.voxel], grid
+
+
+@njit(cache=True, nogil=True)
+def _normals_from_sums(sums):
+    """Normal (smallest eigenvector) and curvature λ0/(λ0+λ1+λ2) from (count, Σx, Σxxᵀ) rows;
+    NaN normal and curvature 1 where fewer than 3 points or a degenerate (line-like) spread."""
+    n = sums.shape[0]
+    normals = np.full((n, 3), np.nan)
+    curvature = np.ones(n)
+    cov = np.empty((3, 3))
+    for i in range(n):
+        c = sums[i, 0]
+        if c < 3:
+            continue
+        mx, my, mz = sums[i, 1] / c, sums[i, 2] / c, sums[i, 3] / c
+        cov[0, 0] = sums[i, 4] / c - mx * mx
+        cov[0, 1] = sums[i, 5] / c - mx * my
+        cov[0, 2] = sums[i, 6] / c - mx * mz
+        cov[1, 1] = sums[i, 7] / c - my * my
+        cov[1, 2] = sums[i, 8] / c - my * mz
+        cov[2, 2] = sums[i, 9] / c - mz * mz
+        cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
+        w, v = np.linalg.eigh(cov)
+        total = w[0] + w[1] + w[2]
+        if total <= 0 or w[1] <= 1e-6 * total:  # all points coincide or lie on a line
+            continue
+        normals[i, 0], normals[i, 1], normals[i, 2] = v[0, 0], v[1, 0], v[2, 0]
+        curvature[i] = max(w[0], 0.0) / total
+    return normals, curvature
+
+
+@njit(cache=True, nogil=True)
+def _voxel_moments(points, centre, voxel, n_voxels):
+    """Rows (count, Σx, Σy, Σz, Σxx, Σxy, Σxz, Σyy, Σyz, Σzz) per voxel, about ``centre``."""
+    out = np.zeros((n_voxels, 10))
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0] - centre[0], points[i, 1] - centre[1], points[i, 2] - centre[2]
+        r = out[voxel[i]]
+        r[0] += 1
+        r[1] += x
+        r[2] += y
+        r[3] += z
+        r[4] += x * x
+        r[5] += x * y
+        r[6] += x * z
+        r[7] += y * y
+        r[8] += y * z
+        r[9] += z * z
+    return out
+
+
+@njit(cache=True, nogil=True)
+def region_growing(normals, curvature, neighbours, cos_theta, max_curvature):
+    """Smoothness-constraint region growing (Rabbani et al. 2006, as PCL implements it).
+
+    Parameters
+    ----------
+    normals : float (U, 3)
+        Unit normals (sign free); NaN rows are units without a normal, each its own segment.
+    curvature : float (U,)
+    neighbours : int (U, K)
+        Neighbour indices, -1 for none.
+    cos_theta : float
+        Cosine of the largest angle between a seed's normal and a joining neighbour's.
+    max_curvature : float
+        Joined units below this curvature become seeds.
+
+    Returns
+    -------
+    segment : int64 (U,)
+        Segment id per unit, 0..S-1.
+    n_segments : int
+    """
+    n = normals.shape[0]
+    valid = ~np.isnan(normals[:, 0])
+    key = np.where(valid, curvature, np.inf)
+    order = np.argsort(key, kind="mergesort")
+    seg = np.full(n, -1, np.int64)
+    queue = np.empty(n, np.int64)
+    ns = 0
+    for o in range(n):
+        s0 = order[o]
+        if seg[s0] >= 0:
+            continue
+        seg[s0] = ns
+        if valid[s0]:
+            head, tail = 0, 1
+            queue[0] = s0
+            while head < tail:
+                s = queue[head]
+                head += 1
+                for k in range(neighbours.shape[1]):
+                    q = neighbours[s, k]
+                    if q < 0 or seg[q] >= 0 or not valid[q]:
+                        continue
+                    dot = abs(
+                        normals[s, 0] * normals[q, 0] + normals[s, 1] * normals[q, 1] + normals[s, 2] * normals[q, 2]
+                    )
+                    if dot < cos_theta:
+                        continue
+                    seg[q] = ns
+                    if curvature[q] < max_curvature:
+                        queue[tail] = q
+                        tail += 1
+        ns += 1
+    return seg, ns
+
+
+def voxel_normals(points: np.ndarray, voxel: float) -> tuple[VoxelGrid, np.ndarray, np.ndarray]:
+    """Voxel formulation of the normals: one covariance per voxel of side ``voxel`` from the
+    points of its 3x3x3 neighbourhood.
+
+    Returns
+    -------
+    grid : VoxelGrid
+    normals : float (V, 3)
+        Per voxel; NaN where the neighbourhood is degenerate.
+    curvature : float (V,)
+    """
+    grid = VoxelGrid.build(points, voxel)
+    centre = points.mean(axis=0) if len(points) else np.zeros(3)
+    sums = _voxel_moments(points, centre, grid.voxel, grid.n_voxels)
+    normals, curvature = _normals_from_sums(grid.neighbourhood_sum(sums))
+    return grid, normals, curvature
+
+
+def voxel_segments(
+    grid: VoxelGrid, normals: np.ndarray, curvature: np.ndarray, theta_deg: float, max_curvature: float
+) -> np.ndarray:
+    """Region growing over 26-connected voxels; segment id per voxel."""
+    nb = grid.neighbours(1).astype(np.int32)
+    seg, _ = region_growing(normals, curvature, nb, np.cos(np.radians(theta_deg)), max_curvature)
+    return seg
+
+
+@njit(cache=True, nogil=True)
+def _knn_sums(points, idx):
+    n, k = idx.shape
+    out = np.zeros((n, 10))
+    for i in range(n):
+        cx, cy, cz = points[i, 0], points[i, 1], points[i, 2]
+        for j in range(k):
+            q = idx[i, j]
+            if q >= points.shape[0]:  # cKDTree's "missing" index
+                continue
+            x, y, z = points[q, 0] - cx, points[q, 1] - cy, points[q, 2] - cz
+            out[i, 0] += 1
+            out[i, 1] += x
+            out[i, 2] += y
+            out[i, 3] += z
+            out[i, 4] += x * x
+            out[i, 5] += x * y
+            out[i, 6] += x * z
+            out[i, 7] += y * y
+            out[i, 8] += y * z
+            out[i, 9] += z * z
+    return out
+
+
+def knn_normals(points: np.ndarray, k: int, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Point formulation of the normals: covariance of the ``k`` nearest neighbours within
+    ``radius`` (Hoppe et al.). Memory ~ N·k·8 bytes: meant for clouds of a few million points.
+
+    Returns
+    -------
+    normals : float (N, 3)
+    curvature : float (N,)
+    neighbours : int64 (N, k)
+        The k-NN graph (-1 for none) for :func:`region_growing`.
+    """
+    from scipy.spatial import cKDTree
+
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    if len(pts) == 0:
+        return np.zeros((0, 3)), np.zeros(0), np.zeros((0, k), np.int64)
+    _, idx = cKDTree(pts).query(pts, k=min(k, len(pts)), distance_upper_bound=radius, workers=-1)
+    idx = np.asarray(idx, dtype=np.int64).reshape(len(pts), -1)
+    normals, curvature = _normals_from_sums(_knn_sums(pts, idx))
+    return normals, curvature, np.where(idx < len(pts), idx, -1)
+
+
+def verticality(normals: np.ndarray, voxel: np.ndarray, n_voxels: int) -> np.ndarray:
+    """Sec. 3.4: share of the points in a point's voxel (``voxel`` index per point) whose normal
+    is 80-100° to the up vector (points without a normal count as not horizontal-facing)."""
+    nz = np.abs(normals[:, 2])
+    facing = (nz < np.cos(np.radians(80.0))) & ~np.isnan(nz)
+    counts = np.bincount(voxel, minlength=n_voxels)
+    share = np.bincount(voxel, weights=facing, minlength=n_voxels) / np.maximum(counts, 1)
+    return share[voxel]
+
+
+@njit(cache=True, nogil=True)
+def _distinct_segments(table, coords, starts, segs):
+    """Distinct segments in each voxel's 3x3x3 neighbourhood (``segs[starts[v]:starts[v+1]]``
+    lists voxel v's segments), counted with a stamp array."""
+    nv = coords.shape[0]
+    n_seg = segs.max() + 1 if segs.shape[0] else 0
+    stamp = np.full(n_seg, -1, np.int64)
+    out = np.zeros(nv, np.int64)
+    for v in range(nv):
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, coords[v, 2] + dz)
+                    if u < 0:
+                        continue
+                    for j in range(starts[u], starts[u + 1]):
+                        s = segs[j]
+                        if stamp[s] != v:
+                            stamp[s] = v
+                            out[v] += 1
+    return out
+
+
+def segment_density(points: np.ndarray, segment: np.ndarray, voxel: float) -> tuple[np.ndarray, VoxelGrid]:
+    """Sec. 3.3: number of distinct segments with points in a voxel or its 26 neighbours.
+
+    Returns the per-voxel count and the grid (``grid.voxel`` maps points to voxels).
+    """
+    grid = VoxelGrid.build(points, voxel)
+    # unique (voxel, segment) pairs, grouped by voxel
+    base = np.int64(segment.max(initial=0)) + 1
+    pair = np.unique(grid.voxel * base + segment)
+    starts = np.searchsorted(pair // base, np.arange(grid.n_voxels + 1))
+    return _distinct_segments(grid.table, grid.coords, starts, pair % base), grid
+
+
+def fragmentation(points: np.ndarray, fragmented: np.ndarray, voxel: float) -> np.ndarray:
+    """Share of the points in a point's 3x3x3 voxel neighbourhood that are ``fragmented`` (lie
+    in tiny segments). Foliage scatters normals, so region growing leaves it in segments of one
+    or two voxels: on simulated urban maps 70-81 % of vegetation points but 21-23 % of vehicle
+    and under 5 % of building points lie in segments of at most two 0.2 m voxels, at every map
+    density tried. Beyond the paper: used where its relative segment density misfires (scenes
+    with little vegetation make every car look dense)."""
+    grid = VoxelGrid.build(points, voxel)
+    sums = np.column_stack([np.bincount(grid.voxel, weights=fragmented, minlength=grid.n_voxels), grid.counts])
+    agg = grid.neighbourhood_sum(sums)
+    return (agg[:, 0] / np.maximum(agg[:, 1], 1))[grid.voxel]

@@ -1,0 +1,398 @@
+"""Object classes of paper 004, Sec. 4.2-4.5: buildings, vehicles, posts, vegetation.
+
+Each step takes the points the earlier steps left (``points``, their ``segment`` ids and, where
+needed, metrics) and returns a mask over them; segment statistics are computed over those
+points only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from scipy.spatial import cKDTree
+
+from prc_slam.mapclass.metrics import segment_density
+from prc_slam.mapclass.voxels import VoxelGrid, find
+
+
+@njit(cache=True, nogil=True)
+def segment_bounds(segment, points, n_segments):
+    """Per-segment min and max of x, y, z: ``(S, 3)`` each (inf/-inf for empty segments)."""
+    lo = np.full((n_segments, 3), np.inf)
+    hi = np.full((n_segments, 3), -np.inf)
+    for i in range(segment.shape[0]):
+        s = segment[i]
+        for j in range(3):
+            v = points[i, j]
+            if v < lo[s, j]:
+                lo[s, j] = v
+            if v > hi[s, j]:
+                hi[s, j] = v
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
+def _compact(segment, n_ids):
+    new = np.full(n_ids, -1, np.int64)
+    out = np.empty(segment.shape[0], np.int64)
+    ns = 0
+    for i in range(segment.shape[0]):
+        s = segment[i]
+        if new[s] < 0:
+            new[s] = ns
+            ns += 1
+        out[i] = new[s]
+    return out, ns
+
+
+def compact(segment: np.ndarray) -> tuple[np.ndarray, int]:
+    """Renumber non-negative segment ids to 0..S-1 in order of first appearance (O(N))."""
+    segment = np.asarray(segment, dtype=np.int64)
+    if len(segment) == 0:
+        return segment, 0
+    return _compact(segment, int(segment.max()) + 1)
+
+
+def segment_voxels(points: np.ndarray, segment: np.ndarray, n_segments: int, voxel: float) -> np.ndarray:
+    """Number of distinct voxels of side ``voxel`` each segment occupies (O(N), hashed)."""
+    grid = VoxelGrid.build(points, voxel)
+    pairs = VoxelGrid.build(np.column_stack([grid.voxel, segment, np.zeros(len(segment))]).astype(np.float64), 1.0)
+    return np.bincount(pairs.coords[:, 1], minlength=n_segments)
+
+
+def distance_to(points: np.ndarray, targets: np.ndarray, voxel: float, limit: float) -> np.ndarray:
+    """Distance (m) from each point's voxel centre to the nearest voxel holding a target point,
+    ``inf`` beyond ``limit`` (the paper's building-voxel distance, Sec. 4.2)."""
+    if len(targets) == 0 or len(points) == 0:
+        return np.full(len(points), np.inf)
+    tgrid = VoxelGrid.build(targets, voxel)
+    pgrid = VoxelGrid.build(points, voxel)
+    d, _ = cKDTree((tgrid.coords + 0.5) * voxel).query((pgrid.coords + 0.5) * voxel, distance_upper_bound=limit)
+    return d[pgrid.voxel]
+
+
+def detect_buildings(
+    points: np.ndarray,
+    segment: np.ndarray,
+    verticality: np.ndarray,
+    min_segment_points: int | None,
+    min_verticality: float = 0.6,
+    min_height: float = 0.0,
+    near: float = 3.0,
+    close: float = 1.5,
+    close_share: float = 2.0 / 3.0,
+    voxel: float = 0.33,
+    spare: np.ndarray | None = None,
+    min_segment_voxels: int = 50,
+    min_reach: float = 0.0,
+) -> np.ndarray:
+    """Sec. 4.2, in the paper's four passes (Fig. 3): large segments with mean verticality
+    ≥ ``min_verticality`` (blue); points of large segments within ``near`` of them (green);
+    segments of any size with ≥ ``close_share`` of their points within ``close`` (orange); large
+    segments above building points (roofs, yellow). Not in the paper (both 0 turn it off): the
+    first pass also asks a segment to span ``min_height`` or to reach ``min_reach`` horizontally
+    (x-y bounding-box diagonal), which keeps car sides out: facades a street-level scanner sees
+    only up to 2-3 m are still longer than a car.
+    A segment is large with ``min_segment_points`` points (the paper's size) or, when that is
+    None, when it occupies ``min_segment_voxels`` voxels of side ``voxel`` (a surface area,
+    which does not change with the map's point density).
+    ``spare`` (not in the paper; None turns it off) marks points the orange pass must not take
+    by segment majority: the classifier passes posts (Sec. 4.4) and foliage
+    (:func:`prc_slam.mapclass.metrics.fragmentation`), so that poles, hedges and crowns next to a
+    facade are not joined to it.
+    """
+    seg, ns = compact(segment)
+    size = np.bincount(seg, minlength=ns)
+    if min_segment_points is not None:
+        large = size >= min_segment_points
+    else:
+        large = segment_voxels(points, seg, ns, voxel) >= min_segment_voxels
+    vert = np.bincount(seg, weights=verticality, minlength=ns) / np.maximum(size, 1)
+    lo, hi = segment_bounds(seg, points, ns)
+    reach = np.hypot(hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1])
+    tall_or_long = (hi[:, 2] - lo[:, 2] >= min_height) | (reach >= min_reach)
+    core = large & (vert >= min_verticality) & tall_or_long
+    building = core[seg]
+    # green: points of large segments near the building voxels
+    cand = large[seg] & ~building
+    if cand.any():
+        d = distance_to(np.compress(cand, points, axis=0), np.compress(building, points, axis=0), voxel, near)
+        building[np.flatnonzero(cand)[d <= near]] = True
+    # orange: whole segments with two thirds of their points close to buildings
+    rest = ~building
+    if rest.any():
+        d = distance_to(np.compress(rest, points, axis=0), np.compress(building, points, axis=0), voxel, close)
+        within = np.bincount(seg[rest], weights=d <= close, minlength=ns)
+        total = np.bincount(seg[rest], minlength=ns)
+        join = (total > 0) & (within >= close_share * total)
+        if spare is not None:
+            join &= np.bincount(seg, weights=spare, minlength=ns) < 0.5 * np.bincount(seg, minlength=ns)
+        building |= join[seg] & rest
+    # yellow: large segments above building points (roofs)
+    rest = ~building & large[seg]
+    if rest.any() and building.any():
+        cols = VoxelGrid.build(np.column_stack([points[:, :2], np.zeros(len(points))]), 1.0)
+        top = np.full(cols.n_voxels, -np.inf)
+        np.maximum.at(top, cols.voxel[building], points[building, 2])
+        above = (points[:, 2] >= top[cols.voxel] - 1.0) & np.isfinite(top[cols.voxel])
+        share = np.bincount(seg[rest], weights=above[rest], minlength=ns) / np.maximum(
+            np.bincount(seg[rest], minlength=ns), 1
+        )
+        building |= (share >= 0.5)[seg] & rest
+    return building
+
+
+def ground_height_grid(ground: np.ndarray, cell: float, radius: int) -> tuple[VoxelGrid, np.ndarray]:
+    """Mean ground height per xy cell over its ``(2r+1)^2`` neighbourhood."""
+    flat = np.column_stack([ground[:, :2], np.zeros(len(ground))])
+    grid = VoxelGrid.build(flat, cell)
+    sums = np.column_stack([np.bincount(grid.voxel, weights=ground[:, 2]), grid.counts])
+    agg = _planar_sum(grid.table, grid.coords, sums, radius)
+    return grid, agg[:, 0] / agg[:, 1]
+
+
+@njit(cache=True, nogil=True)
+def _planar_sum(table, coords, values, radius):
+    out = np.zeros_like(values)
+    for v in range(coords.shape[0]):
+        for dx in range(-radius, radius + 1):
+            for dy in range(-radius, radius + 1):
+                u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, 0)
+                if u >= 0:
+                    out[v] += values[u]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _lookup_cells(table, coords, keys):
+    out = np.empty(keys.shape[0], np.int64)
+    for i in range(keys.shape[0]):
+        out[i] = find(table, coords, keys[i, 0], keys[i, 1], 0)
+    return out
+
+
+def height_above_ground(points: np.ndarray, ground: np.ndarray, cell: float = 1.0, radius: int = 3) -> np.ndarray:
+    """Height of each point above the mean ground height of the cells beneath and close to it
+    (NaN where no ground lies within ``radius`` cells)."""
+    if len(ground) == 0:
+        return np.full(len(points), np.nan)
+    grid, gz = ground_height_grid(ground, cell, radius)
+    keys = np.floor(points[:, :2] / cell).astype(np.int64)
+    idx = _lookup_cells(grid.table, grid.coords, keys)
+    out = np.full(len(points), np.nan)
+    has = idx >= 0
+    out[has] = points[has, 2] - gz[idx[has]]
+    # cells beyond the ground grid: nearest ground cell within the radius
+    if (~has).any():
+        d, j = cKDTree((grid.coords[:, :2] + 0.5) * cell).query(points[~has, :2], distance_upper_bound=radius * cell)
+        ok = np.isfinite(d)
+        sub = np.flatnonzero(~has)[ok]
+        out[sub] = points[sub, 2] - gz[j[ok]]
+    return out
+
+
+def adjacent_small_segments(
+    points: np.ndarray, segment: np.ndarray, chosen: np.ndarray, max_points: int, voxel: float = 0.33
+) -> np.ndarray:
+    """Points of segments smaller than ``max_points`` that touch (share or neighbour a voxel
+    with) the ``chosen`` points; used by Sec. 4.3 and 4.4 ("as well as small directly adjacent
+    segments")."""
+    seg, ns = compact(segment)
+    if not chosen.any():
+        return np.zeros(len(points), dtype=bool)
+    grid = VoxelGrid.build(points, voxel)
+    hot = grid.neighbourhood_sum(np.bincount(grid.voxel, weights=chosen, minlength=grid.n_voxels)) > 0
+    size = np.bincount(seg, minlength=ns)
+    touching = np.bincount(seg, weights=hot[grid.voxel] & ~chosen, minlength=ns) > 0
+    return ((size < max_points) & touching)[seg] & ~chosen
+
+
+def _vehicle_like(
+    points: np.ndarray,
+    group: np.ndarray,
+    hag: np.ndarray,
+    min_points: int,
+    length: tuple[float, float],
+    max_width: float,
+    height: tuple[float, float],
+    max_ground_gap: float,
+    solid: np.ndarray,
+    verticality: np.ndarray | None = None,
+    max_verticality: float = 1.0,
+    foliage: np.ndarray | None = None,
+) -> np.ndarray:
+    """Per group: dimensions in vehicle ranges (length along the principal horizontal axis,
+    width across it, height) and bottom at most ``max_ground_gap`` above the nearby ground.
+    Extents are taken over the ``solid`` points (in voxels holding several points) so that a
+    few stray returns do not widen a car; groups without solid points use all theirs.
+    Optionally also: mean ``verticality`` at most ``max_verticality`` and less than half of the
+    points ``foliage``."""
+    g, ng = compact(group)
+    size = np.bincount(g, minlength=ng)
+    n = np.maximum(size, 1)
+    x, y = points[:, 0], points[:, 1]
+    mx, my = np.bincount(g, x, ng) / n, np.bincount(g, y, ng) / n
+    dx, dy = x - mx[g], y - my[g]
+    sxx, syy, sxy = (np.bincount(g, w, ng) / n for w in (dx * dx, dy * dy, dx * dy))
+    angle = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+    c, s = np.cos(angle)[g], np.sin(angle)[g]
+    uvz = np.column_stack([dx * c + dy * s, -dx * s + dy * c, points[:, 2]])
+    has_solid = np.bincount(g, weights=solid, minlength=ng) > 0
+    use = solid | ~has_solid[g]
+    ulo, uhi = segment_bounds(g[use], uvz[use], ng)
+    along, across, tall = (uhi - ulo).T
+    bottom = np.full(ng, np.inf)
+    ok = np.isfinite(hag)
+    np.minimum.at(bottom, g[ok], hag[ok])
+    like = (
+        (size >= min_points)
+        & (along >= length[0]) & (along <= length[1]) & (across <= max_width)
+        & (tall >= height[0]) & (tall <= height[1])
+        & (bottom <= max_ground_gap)
+    )  # fmt: skip
+    if verticality is not None:
+        like &= np.bincount(g, weights=verticality, minlength=ng) <= max_verticality * size
+    if foliage is not None:
+        like &= np.bincount(g, weights=foliage, minlength=ng) < 0.5 * size
+    return like[g]
+
+
+def detect_vehicles(
+    points: np.ndarray,
+    segment: np.ndarray,
+    ground: np.ndarray,
+    min_points: int = 30,
+    length: tuple[float, float] = (1.0, 6.0),
+    max_width: float = 2.5,
+    height: tuple[float, float] = (0.4, 3.5),
+    max_ground_gap: float = 0.6,
+    small_segment_points: int = 200,
+    group_voxel: float = 0.0,
+    foliage: np.ndarray | None = None,
+    verticality: np.ndarray | None = None,
+    max_verticality: float = 1.0,
+    posts: np.ndarray | None = None,
+) -> np.ndarray:
+    """Sec. 4.3: segments whose dimensions lie in vehicle ranges and whose bottom lies at most
+    ``max_ground_gap`` above the ground beneath and close to them ("average vertical height
+    distance to ground points located beneath and close"), plus small adjacent segments.
+
+    With ``group_voxel > 0`` (beyond the paper, after its Sec. 7 outlook "detect adjacent
+    segments, which together form a structure"): the same test also runs on groups of the
+    segments that touch (26-connected voxels of that side), so a car split into roof,
+    bonnet and sides is found as a whole. Groups whose points are mostly ``foliage`` are left
+    out: a bush is car-sized too, but made of tiny segments; so are segments and groups whose
+    mean ``verticality`` exceeds ``max_verticality`` (1 = paper): simulated cars average at most
+    0.31 (roof, bonnet and glass face up), the facade pieces a street scanner sees low on
+    buildings ~0.95. Points marked ``posts`` stay out of the groups (a sign pole beside a car
+    would widen it past 2.5 m).
+    """
+    hag = height_above_ground(points, ground)
+    grid = VoxelGrid.build(points, group_voxel if group_voxel > 0 else 0.3)  # also the solidity test
+    solid = grid.counts[grid.voxel] >= 3
+    test = (min_points, length, max_width, height, max_ground_gap, solid, verticality, max_verticality, foliage)
+    vehicle = _vehicle_like(points, segment, hag, *test)
+    vehicle |= adjacent_small_segments(points, segment, vehicle, small_segment_points)
+    if group_voxel > 0:
+        if posts is None or not posts.any():
+            groups = grid.components()[grid.voxel]
+        else:
+            free = np.flatnonzero(~posts)
+            sub = VoxelGrid.build(np.take(points, free, axis=0), group_voxel)
+            groups = np.arange(len(points)) + len(points)  # every post point alone
+            groups[free] = sub.components()[sub.voxel]
+        vehicle |= _vehicle_like(points, groups, hag, *test)
+    return vehicle
+
+
+@njit(cache=True, nogil=True)
+def _post_voxels(coords, filled, table, max_run, min_layers):
+    """Sec. 4.4 pillars: filled voxels whose horizontal run of filled voxels (along x and y in
+    their layer) is at most ``max_run``; stacks of ≥ ``min_layers`` of them, read bottom to top
+    per x-y column, are posts."""
+    nv = coords.shape[0]
+    slim = np.zeros(nv, np.bool_)
+    for v in range(nv):
+        if not filled[v]:
+            continue
+        x, y, z = coords[v, 0], coords[v, 1], coords[v, 2]
+        ok = True
+        for ax in range(2):
+            ex, ey = (1, 0) if ax == 0 else (0, 1)
+            run = 1
+            for sgn in (-1, 1):
+                k = 1
+                while True:
+                    u = find(table, coords, x + sgn * k * ex, y + sgn * k * ey, z)
+                    if u < 0 or not filled[u]:
+                        break
+                    run += 1
+                    k += 1
+                    if run > max_run:
+                        break
+            if run > max_run:
+                ok = False
+        slim[v] = ok
+    post = np.zeros(nv, np.bool_)
+    for v in range(nv):
+        if not slim[v]:
+            continue
+        below = find(table, coords, coords[v, 0], coords[v, 1], coords[v, 2] - 1)
+        if below >= 0 and slim[below]:
+            continue  # not the bottom of a stack
+        top = v
+        n = 1
+        while True:
+            u = find(table, coords, coords[top, 0], coords[top, 1], coords[top, 2] + 1)
+            if u < 0 or not slim[u]:
+                break
+            top = u
+            n += 1
+        if n >= min_layers:
+            w = v
+            for _ in range(n):
+                post[w] = True
+                w = find(table, coords, coords[w, 0], coords[w, 1], coords[w, 2] + 1)
+    return post
+
+
+def detect_posts(
+    points: np.ndarray,
+    segment: np.ndarray,
+    voxel: float = 0.25,
+    min_voxel_points: int = 3,
+    max_extent: float = 1.0,
+    min_height: float = 1.5,
+    small_segment_points: int = 200,
+) -> np.ndarray:
+    """Sec. 4.4: voxel pillars at least ``min_height`` tall whose filled voxels reach at most
+    ``max_extent`` horizontally, plus small adjacent segments."""
+    if len(points) == 0:
+        return np.zeros(0, dtype=bool)
+    grid = VoxelGrid.build(points, voxel)
+    filled = grid.counts >= min_voxel_points
+    max_run = max(int(np.floor(max_extent / voxel + 1e-9)), 1)
+    min_layers = int(np.ceil(min_height / voxel - 1e-9))
+    post = _post_voxels(grid.coords, filled, grid.table, max_run, min_layers)[grid.voxel]
+    return post | adjacent_small_segments(points, segment, post, small_segment_points)
+
+
+def detect_vegetation(
+    points: np.ndarray,
+    segment: np.ndarray,
+    scene_points: np.ndarray,
+    voxel: float = 1.0,
+    factor: float = 2.0,
+    min_similar: int = 2,
+) -> np.ndarray:
+    """Sec. 4.5: points in voxels whose segment density (distinct segments of the remaining
+    points in the 3x3x3 neighbourhood, Sec. 3.3) is ``factor`` times the average over the
+    scene's voxels (``scene_points``: all non-ground points) and with at least ``min_similar``
+    neighbouring voxels that high."""
+    if len(points) == 0:
+        return np.zeros(0, dtype=bool)
+    density, grid = segment_density(points, segment, voxel)
+    n_scene = VoxelGrid.build(scene_points, voxel).n_voxels if len(scene_points) else grid.n_voxels
+    high = density >= factor * density.sum() / max(n_scene, 1)
+    similar = grid.neighbourhood_sum(high.astype(float)) - high
+    return (high & (similar >= min_similar))[grid.voxel]

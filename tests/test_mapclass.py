@@ -1,0 +1,383 @@
+"""Map classification after registration (paper 004): each step on constructed clouds, bad
+input, tiling, segregation files, and the whole pipeline on a simulated urban map."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from prc_slam import labels as L
+from prc_slam.mapclass import MapClassConfig, classify_map, to_world
+from prc_slam.mapclass import metrics as M
+from prc_slam.mapclass.ground import detect_ground
+from prc_slam.mapclass.objects import (
+    compact,
+    detect_buildings,
+    detect_posts,
+    detect_vegetation,
+    detect_vehicles,
+    height_above_ground,
+    segment_voxels,
+)
+from prc_slam.mapclass.tiles import array_chunks, classify_tiled
+from prc_slam.mapclass.voxels import VoxelGrid
+
+RNG = np.random.default_rng(0)
+
+
+# ---- constructed clouds --------------------------------------------------------------------
+
+
+def plane(x0, x1, y0, y1, z=0.0, step=0.05, slope=0.0):
+    x, y = np.meshgrid(np.arange(x0, x1, step), np.arange(y0, y1, step), indexing="ij")
+    x, y = x.ravel(), y.ravel()
+    return np.column_stack([x, y, z + slope * x + RNG.normal(0, 0.003, len(x))])
+
+
+def wall(x0, x1, y, z0, z1, step=0.05):
+    x, z = np.meshgrid(np.arange(x0, x1, step), np.arange(z0, z1, step), indexing="ij")
+    return np.column_stack([x.ravel(), np.full(x.size, y) + RNG.normal(0, 0.003, x.size), z.ravel()])
+
+
+def box(cx, cy, lx, ly, z0, z1, step=0.05):
+    """The five visible faces (no bottom) of an axis-aligned box."""
+    faces = [
+        wall(cx - lx / 2, cx + lx / 2, cy - ly / 2, z0, z1, step),
+        wall(cx - lx / 2, cx + lx / 2, cy + ly / 2, z0, z1, step),
+        wall(cy - ly / 2, cy + ly / 2, cx - lx / 2, z0, z1, step)[:, [1, 0, 2]],
+        wall(cy - ly / 2, cy + ly / 2, cx + lx / 2, z0, z1, step)[:, [1, 0, 2]],
+        plane(cx - lx / 2, cx + lx / 2, cy - ly / 2, cy + ly / 2, z1, step),
+    ]
+    return np.concatenate(faces)
+
+
+def pole(cx, cy, height, radius=0.08, step=0.04):
+    z = np.arange(0.0, height, step)
+    a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    zz, aa = np.meshgrid(z, a, indexing="ij")
+    return np.column_stack([cx + radius * np.cos(aa.ravel()), cy + radius * np.sin(aa.ravel()), zz.ravel()])
+
+
+def bush(cx, cy, radius=1.0, n=6000):
+    d = RNG.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    r = radius * RNG.random(n) ** (1 / 3)
+    return np.array([cx, cy, radius + 0.1]) + d * r[:, None]
+
+
+@pytest.fixture(scope="module")
+def street():
+    """A 30 x 16 m plane with a long wall, a car-sized box, a pole and a bush; labels per point."""
+    parts = [
+        (plane(-15, 15, -8, 8), L.GROUND),
+        (wall(-15, 15, 7.5, 0.0, 8.0), L.BUILDING),
+        (box(0.0, -2.0, 4.5, 1.8, 0.3, 1.5), L.VEHICLE),
+        (pole(8.0, -5.0, 4.0), L.POLE),
+        (bush(-8.0, -4.0), L.VEGETATION),
+    ]
+    pts = np.concatenate([p for p, _ in parts])
+    ref = np.concatenate([np.full(len(p), c, np.uint8) for p, c in parts])
+    return pts, ref
+
+
+# ---- voxels and metrics -------------------------------------------------------------------
+
+
+def test_voxel_grid_counts_coords_neighbours_components():
+    pts = np.array([[0.1, 0.1, 0.1], [0.2, 0.3, 0.4], [1.1, 0.1, 0.1], [5.5, 5.5, 5.5], [-0.1, 0.0, 0.0]])
+    g = VoxelGrid.build(pts, 1.0)
+    assert g.n_voxels == 4
+    assert g.voxel[0] == g.voxel[1] != g.voxel[2]
+    np.testing.assert_array_equal(g.coords[g.voxel[4]], [-1, 0, 0])
+    assert g.counts[g.voxel[0]] == 2
+    # neighbourhood sums: the voxel at the origin sees itself (2), (1,0,0) (1) and (-1,0,0) (1)
+    np.testing.assert_array_equal(g.neighbourhood_sum(g.counts)[g.voxel[[0, 2, 3, 4]]], [4, 3, 1, 3])
+    comp = g.components()
+    assert comp[g.voxel[0]] == comp[g.voxel[2]] == comp[g.voxel[4]] != comp[g.voxel[3]]
+
+
+def test_voxel_grid_grows_its_table():
+    pts = RNG.uniform(-50, 50, size=(20000, 3))
+    g = VoxelGrid.build(pts, 0.5)
+    keys = np.floor(pts / 0.5).astype(np.int64)
+    assert g.n_voxels == len(np.unique(keys, axis=0))
+    np.testing.assert_array_equal(g.coords[g.voxel], keys)
+
+
+def test_local_density_hand_computed():
+    # 54 points in voxel (0,0,0) and 27 in (1,0,0), voxel side 0.5 m: each voxel's 3x3x3
+    # neighbourhood holds 81 points in 27 * 0.125 m^3
+    pts = np.concatenate([np.full((54, 3), 0.25), np.tile([0.75, 0.25, 0.25], (27, 1))])
+    density, _ = M.local_density(pts, 0.5)
+    np.testing.assert_allclose(density, 81 / (27 * 0.125))
+
+
+def test_normals_curvature_and_degenerate_cases():
+    flat = plane(0, 1, 0, 1, step=0.1)
+    sums = M._voxel_moments(flat, np.zeros(3), np.zeros(len(flat), np.int64), 1)
+    n, c = M._normals_from_sums(sums)
+    assert abs(abs(n[0, 2]) - 1) < 1e-3 and c[0] < 1e-3
+    line = np.column_stack([np.linspace(0, 1, 20), np.zeros(20), np.zeros(20)])
+    two = np.zeros((2, 3))
+    for pts in (line, two, np.zeros((5, 3))):
+        n, c = M._normals_from_sums(M._voxel_moments(pts, np.zeros(3), np.zeros(len(pts), np.int64), 1))
+        assert np.isnan(n).all() and c[0] == 1.0
+
+
+def test_region_growing_splits_perpendicular_planes_and_isolates_missing_normals():
+    normals = np.array([[0, 0, 1], [0, 0, 1], [0.0, 0.05, 1], [1, 0, 0], [1, 0, 0], [np.nan] * 3], float)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    curvature = np.array([0.0, 0.01, 0.01, 0.0, 0.01, 1.0])
+    # a chain 0-1-2-3-4-5
+    nb = np.array([[1, -1], [0, 2], [1, 3], [2, 4], [3, 5], [4, -1]])
+    seg, n = M.region_growing(normals, curvature, nb, np.cos(np.radians(8)), 0.05)
+    assert n == 3
+    assert seg[0] == seg[1] == seg[2] != seg[3] == seg[4] != seg[5]
+
+
+def test_region_growing_stops_at_high_curvature():
+    normals = np.tile([0.0, 0.0, 1.0], (3, 1))
+    nb = np.array([[1, -1], [0, 2], [1, -1]])
+    # unit 1 joins 0 but may not seed (curvature above the limit): unit 2 starts its own segment
+    seg, n = M.region_growing(normals, np.array([0.0, 0.5, 0.01]), nb, 0.99, 0.05)
+    assert seg[0] == seg[1] != seg[2] and n == 2
+
+
+def test_verticality_hand_computed():
+    normals = np.array([[1, 0, 0], [0, 1, 0.1], [0, 0, 1], [np.nan] * 3, [0, 0, 1]], float)
+    # 80 deg to up <=> |n_z| < cos 80 = 0.1736; (0, 1, 0.1) unnormalised has n_z 0.1 -> facing
+    v = M.verticality(normals, np.array([0, 0, 0, 0, 1]), 2)
+    np.testing.assert_allclose(v, [0.5, 0.5, 0.5, 0.5, 0.0])
+
+
+def test_segment_density_counts_distinct_segments_in_the_neighbourhood():
+    pts = np.array([[0.5, 0.5, 0.5], [0.6, 0.5, 0.5], [1.5, 0.5, 0.5], [5.5, 0.5, 0.5]])
+    seg = np.array([0, 1, 1, 2])
+    density, grid = segment_density_pair = M.segment_density(pts, seg, 1.0)
+    assert segment_density_pair[1] is grid
+    # voxel (0,0,0): segments {0, 1} + neighbour (1,0,0) {1} -> 2; (1,0,0) -> 2; (5,0,0) -> 1
+    np.testing.assert_array_equal(density[grid.voxel], [2, 2, 2, 1])
+
+
+def test_segment_voxels_and_compact():
+    seg, n = compact(np.array([7, 7, 3, 9, 3]))
+    np.testing.assert_array_equal(seg, [0, 0, 1, 2, 1])
+    assert n == 3
+    pts = np.array([[0.1, 0, 0], [0.2, 0, 0], [1.1, 0, 0], [0.1, 0, 0], [2.5, 0, 0]])
+    np.testing.assert_array_equal(segment_voxels(pts, seg, 3, 1.0), [1, 2, 1])  # seg 0: both in x = 0
+
+
+# ---- classes ------------------------------------------------------------------------------
+
+
+def test_ground_keeps_slopes_and_curbs_rejects_box_tops(street):
+    pts, ref = street
+    ground = detect_ground(pts)
+    assert ground[ref == L.GROUND].mean() > 0.99
+    box_top = (ref == L.VEHICLE) & (pts[:, 2] > 1.4)
+    assert not ground[box_top].any()
+    # a 10 % slope with a 12 cm curb is ground everywhere
+    slope = np.concatenate([plane(0, 20, 0, 5, slope=0.1), plane(0, 20, 5, 8, z=0.12, slope=0.1)])
+    assert detect_ground(slope).mean() > 0.99
+
+
+def test_ground_majority_vote_needs_five_of_eight_directions():
+    from prc_slam.mapclass.ground import scan_line_votes
+
+    zmin = np.zeros((5, 5))
+    zmin[2, 2] = 0.5  # a 0.5 m step on flat ground: every scan line rejects it
+    votes = scan_line_votes(zmin, np.zeros((5, 5)), 0.5, 0.3, 0.1, 1.0)
+    assert votes[2, 2] == 0 and (np.delete(votes.ravel(), 12) == 8).all()
+    zmin[2, 2] = 0.2  # within max_slope * 0.5 + max_step from each side's last ground cell
+    assert scan_line_votes(zmin, np.zeros((5, 5)), 0.5, 0.3, 0.1, 1.0)[2, 2] == 8
+
+
+def test_height_above_ground_under_a_car_without_ground_beneath():
+    ground = plane(-5, 5, -5, 5, z=1.0)
+    ground = ground[np.abs(ground[:, 0]) > 1.0]  # a hole where a car hides the road
+    hag = height_above_ground(np.array([[0.0, 0.0, 1.5], [30.0, 30.0, 1.0]]), ground)
+    assert abs(hag[0] - 0.5) < 0.01 and np.isnan(hag[1])
+
+
+def test_buildings_take_the_wall_and_small_segments_on_it_not_far_ones():
+    w = wall(0, 20, 0, 0, 6)
+    frame = box(10, -0.3, 1.0, 0.2, 2.0, 3.0, step=0.05)  # a window ledge 0.3 m off the wall
+    far = box(10, -8, 1.0, 0.2, 2.0, 3.0, step=0.05)
+    pts = np.concatenate([w, frame, far])
+    seg = np.concatenate([np.zeros(len(w)), np.ones(len(frame)), np.full(len(far), 2)]).astype(np.int64)
+    vert = np.concatenate([np.ones(len(w)), np.zeros(len(frame) + len(far))])
+    b = detect_buildings(pts, seg, vert, None, min_height=2.0, min_reach=6.0)
+    assert b[: len(w)].all() and b[len(w) : len(w) + len(frame)].all() and not b[-len(far) :].any()
+    # a low, car-long vertical segment is a building only in paper mode (no height / reach guard)
+    car_side = wall(0, 4.5, -10, 0.3, 1.4)
+    pts2 = np.concatenate([w, car_side])
+    seg2 = np.r_[np.zeros(len(w)), np.ones(len(car_side))].astype(np.int64)
+    v2 = np.ones(len(pts2))
+    ours = detect_buildings(pts2, seg2, v2, None, min_segment_voxels=20, min_height=2.0, min_reach=6.0)
+    assert not ours[len(w) :].any()
+    assert detect_buildings(pts2, seg2, v2, None, min_segment_voxels=20)[len(w) :].all()
+
+
+def test_buildings_spare_marks_keep_hedges_off_the_facade():
+    w = wall(0, 20, 0, 0, 6)
+    hedge = bush(10, -1.0, radius=0.8)
+    pts = np.concatenate([w, hedge])
+    seg = np.r_[np.zeros(len(w)), 1 + np.arange(len(hedge))].astype(np.int64)
+    vert = np.r_[np.ones(len(w)), np.zeros(len(hedge))]
+    spare = np.r_[np.zeros(len(w), bool), np.ones(len(hedge), bool)]
+    paper = detect_buildings(pts, seg, vert, None, near=0.0)
+    ours = detect_buildings(pts, seg, vert, None, near=0.0, spare=spare)
+    assert paper[len(w) :].mean() > 0.9 and not ours[len(w) :].any()
+
+
+def test_vehicles_by_dimensions_and_ground_contact(street):
+    pts, ref = street
+    ground = pts[ref == L.GROUND]
+    car = box(0, 0, 4.5, 1.8, 0.3, 1.5)
+    floating = box(0, 10, 4.5, 1.8, 2.5, 3.7)
+    bus_long = box(0, 20, 12.0, 2.4, 0.3, 3.0)
+    pts2 = np.concatenate([car, floating, bus_long])
+    seg = np.concatenate([np.full(len(car), 0), np.full(len(floating), 1), np.full(len(bus_long), 2)])
+    v = detect_vehicles(pts2, seg, ground)
+    assert v[: len(car)].all() and not v[len(car) :].any()
+    # cut into 0.3 m slices (one segment each, each too flat for a car), found as a group only
+    slices = np.floor((car[:, 2] - 0.3) / 0.3).astype(np.int64)
+    assert not detect_vehicles(car, slices, ground, small_segment_points=1).any()
+    assert detect_vehicles(car, slices, ground, small_segment_points=1, group_voxel=0.3).all()
+
+
+def test_posts_pillars_taller_than_1_5_m_and_slim():
+    p = pole(0, 0, 3.0)
+    stump = pole(5, 0, 1.0)
+    w = wall(10, 15, 0, 0, 3)
+    pts = np.concatenate([p, stump, w])
+    seg = np.concatenate([np.zeros(len(p)), np.ones(len(stump)), np.full(len(w), 2)]).astype(np.int64)
+    post = detect_posts(pts, seg, small_segment_points=1)
+    assert post[: len(p)].mean() > 0.9 and not post[len(p) :].any()
+
+
+def test_vegetation_where_segments_are_many(street):
+    pts, ref = street
+    rest = ref != L.GROUND
+    p = pts[rest]
+    # one segment per point in the bush (what region growing yields on foliage), one per object else
+    seg = np.where(ref[rest] == L.VEGETATION, 10 + np.arange(len(p)), ref[rest]).astype(np.int64)
+    veg = detect_vegetation(p, seg, p)
+    r = ref[rest]
+    assert veg[r == L.VEGETATION].mean() > 0.8 and veg[r != L.VEGETATION].mean() < 0.02
+
+
+# ---- the whole pipeline and bad input -----------------------------------------------------
+
+
+def test_classify_map_constructed_street(street):
+    pts, ref = street
+    res = classify_map(pts)
+    assert len(res.labels) == len(pts)
+    # the box's sharp roof edges break into many small segments, which the vegetation test flags
+    # in so small a scene: the roof's rim stays unclassified (recall 0.79)
+    for code, recall in [(L.GROUND, 0.95), (L.BUILDING, 0.9), (L.VEHICLE, 0.75), (L.POLE, 0.7), (L.VEGETATION, 0.6)]:
+        assert (res.labels[ref == code] == code).mean() >= recall, L.CODE_TO_NAME[code]
+    assert set(res.seconds) >= {"density", "normals", "segmentation", "ground", "buildings", "vegetation"}
+
+
+def test_bad_input_empty_single_nan_and_sparse():
+    assert len(classify_map(np.zeros((0, 3))).labels) == 0
+    one = classify_map(np.array([[1.0, 2.0, 3.0]]))
+    assert one.labels.tolist() == [L.NOISE]  # one point in a cubic metre is below 100 points/m^3
+    pts = plane(0, 5, 0, 5)
+    pts[[3, 10]] = np.nan
+    pts[20] = [np.inf, 0, 0]
+    res = classify_map(pts)
+    assert res.nonfinite == 3 and (res.labels[[3, 10, 20]] == L.NO_RETURN).all()
+    assert (res.labels[np.isfinite(pts).all(axis=1)] == L.GROUND).mean() > 0.95
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        classify_map(np.zeros((4, 2)))
+    # all points identical: degenerate normals, still one label each
+    same = classify_map(np.ones((500, 3)))
+    assert len(same.labels) == 500 and np.isnan(same.segment).sum() == 0
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    n=st.integers(0, 400),
+    spread=st.floats(0.1, 50.0),
+    nan_share=st.floats(0.0, 0.3),
+    seed=st.integers(0, 2**16),
+)
+def test_one_label_per_input_point(n, spread, nan_share, seed):
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(0, spread, (n, 3))
+    pts[rng.random(n) < nan_share] = np.nan
+    res = classify_map(pts)
+    allowed = {L.NO_RETURN, L.UNCLASSIFIED, L.GROUND, L.BUILDING, L.VEHICLE, L.POLE, L.VEGETATION, L.NOISE}
+    assert res.labels.shape == (n,) and set(np.unique(res.labels).tolist()) <= allowed
+    assert ((res.labels == L.NO_RETURN) == ~np.isfinite(pts).all(axis=1)).all()
+
+
+def test_density_threshold_limits():
+    pts = plane(0, 5, 0, 5)
+    assert (classify_map(pts, MapClassConfig(min_density=0.0)).labels != L.NOISE).all()
+    assert (classify_map(pts, MapClassConfig(min_density=1e12)).labels == L.NOISE).all()
+
+
+def test_tiled_equals_untiled_inside_one_tile_and_keeps_every_point(street, tmp_path):
+    pts = street[0] + [50.0, 50.0, 0.0]  # inside the tile [0, 100)^2
+    whole = classify_map(pts).labels
+    tiled, seconds = classify_tiled(array_chunks(pts, 50_000), tile=100.0, margin=5.0, workdir=tmp_path)
+    np.testing.assert_array_equal(tiled, whole)
+    assert "normals" in seconds and not list(tmp_path.iterdir())  # spill files removed
+    bad = pts.copy()
+    bad[5] = np.nan
+    labels, _ = classify_tiled(array_chunks(bad, 10_000), tile=10.0, margin=3.0)
+    assert len(labels) == len(bad) and labels[5] == L.NO_RETURN
+    border = np.mean(labels[np.isfinite(bad).all(axis=1)] != whole[np.isfinite(bad).all(axis=1)])
+    assert border < 0.1  # 10 m tiles cut the wall and the car; the margin keeps most labels
+
+
+def test_to_world_interpolates_between_frame_poses():
+    from scipy.spatial.transform import Rotation
+
+    poses = np.tile(np.eye(4), (2, 1, 1))
+    poses[1, :3, 3] = [2.0, 0.0, 0.0]
+    poses[1, :3, :3] = Rotation.from_euler("z", 90, degrees=True).as_matrix()
+    p = np.array([[1.0, 0.0, 0.0]] * 3)
+    w = to_world(p, np.array([0.0, 0.5, 2.0]), np.array([0.0, 1.0]), poses)
+    half = Rotation.from_euler("z", 45, degrees=True).apply([1.0, 0, 0]) + np.array([1.0, 0, 0])
+    np.testing.assert_allclose(w, [[1, 0, 0], half, [2, 1, 0]], atol=1e-12)
+
+
+# ---- simulated urban map ------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def urban_map():
+    from data_tools.sim.simulator import SimConfig, Simulator
+    from prc_slam.mapclass import accumulate
+    from prc_slam.scan import Scan
+
+    sim = Simulator(SimConfig(frames=30, seed=2))
+    frames = [sim.frame(i) for i in range(30)]
+
+    def scans():
+        for i, f in enumerate(frames):
+            s = Scan(f.ranges, sim.sensor.model, timestamps=f.slot_times, gt_labels=f.labels, gt_instance=f.instance)
+            yield i, s, {"ref": s.reference_labels(), "inst": s.per_point(s.gt_instance)}
+
+    return accumulate(scans(), np.array([f.pose for f in frames]), np.array([f.time for f in frames]))
+
+
+def test_simulated_urban_map(urban_map):
+    from prc_slam.mapclass_run import score_map
+
+    res = classify_map(urban_map.points)
+    s = score_map(res.labels, urban_map.attributes["ref"], urban_map.attributes["inst"])
+    pc = s["per_class"]
+    # measured on this drive (30 hdl64 frames, seed 2): ground 0.97 / 0.99, building 0.99 / 0.90,
+    # vehicle 0.99 / 0.91
+    assert pc["ground"]["precision"] > 0.95 and pc["ground"]["recall"] > 0.95
+    assert pc["building"]["precision"] > 0.95 and pc["building"]["recall"] > 0.85
+    assert pc["vehicle"]["precision"] > 0.95 and pc["vehicle"]["recall"] > 0.85
+    assert s["objects"]["vehicle"]["found"] >= 1 and s["objects"]["vehicle"]["present"] >= 5
