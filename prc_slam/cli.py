@@ -557,22 +557,29 @@ def _map_from_dataset(
 
 def _mapclass_outputs(points_source, n_points: int, cfg: Config, out: Path, tile: float | None, margin: float,
                       reference=None, instance=None, prc=None) -> dict[str, Any]:  # fmt: skip
-    """Classify, write the per-class LAS files, score; returns the metrics."""
+    """Classify, write the per-class LAS files, score; returns the metrics. Tiled runs keep the
+    labels in a memory-mapped scratch file (one byte per point), so the map never has to fit."""
+    import tempfile
+
     from data_tools.writers import ClassSplitWriter
-    from prc_slam.mapclass_run import prc_agreement, run_mapclass, score_map
+    from prc_slam.mapclass_run import UNTILED_MAX_POINTS, prc_agreement, run_mapclass, score_map
 
     out.mkdir(parents=True, exist_ok=True)
-    with _progress() as progress:
+    tiled = tile > 0 if tile is not None else n_points > UNTILED_MAX_POINTS
+    with tempfile.TemporaryDirectory(dir=out) as scratch, _progress() as progress:
+        store = np.memmap(Path(scratch) / "labels.u8", np.uint8, "w+", shape=(max(n_points, 1),)) if tiled else None
         task = progress.add_task("map classification (tiles)", total=None)
         labels, metrics = run_mapclass(
-            points_source, n_points, cfg.mapclass, tile, margin,
+            points_source, n_points, cfg.mapclass, tile, margin, labels_out=None if store is None else store[:n_points],
             progress=lambda done, total: progress.update(task, completed=done, total=total),
         )  # fmt: skip
-    with ClassSplitWriter(out) as writer:
-        start = 0
-        for chunk in points_source():
-            writer.write(chunk, labels[start : start + len(chunk)])
-            start += len(chunk)
+        with ClassSplitWriter(out) as writer:
+            start = 0
+            for chunk in points_source():
+                writer.write(chunk, labels[start : start + len(chunk)])
+                start += len(chunk)
+        labels = np.array(labels) if reference is not None or prc is not None else None
+        del store
     metrics["files"] = {k: str(v) for k, v in writer.paths.items()}
     if reference is not None:
         metrics.update(score_map(labels, reference, instance))
