@@ -260,15 +260,22 @@ class FilterMode(str, Enum):
     prc = "prc"
 
 
+class Matching(str, Enum):
+    plain = "plain"
+    class_aware = "class-aware"
+
+
 class PoseFormat(str, Enum):
     kitti = "kitti"
     tum = "tum"
 
 
-def _run_config(preset: Preset, config_path: Path | None) -> Config:
+def _run_config(preset: Preset, config_path: Path | None, mode: Mode = Mode.urban) -> Config:
+    from prc_slam.odometry.classaware import ClassAwareConfig
+
     if config_path is not None:
         return Config.from_yaml(config_path)
-    return Config(prc=PRCConfig.preset("multibeam" if preset is Preset.multibeam else "urban"))
+    return Config(prc=_prc_config(mode, preset, None, None), classaware=ClassAwareConfig.for_mode(mode.value))
 
 
 def _compare(
@@ -319,7 +326,9 @@ def print_variant_table(metrics: dict[str, Any], title: str) -> None:
 @app.command()
 def compare(
     input: Path = typer.Argument(..., help="KITTI directory, simulated sequence, or Ouster .npz files"),
-    variants: str = typer.Option("raw,prc", help="comma-separated variants: raw, prc"),
+    variants: str = typer.Option("raw,prc", help="comma-separated variants: raw, prc, prc+classaware"),
+    mode: Mode = typer.Option(Mode.urban, help="PRC classes: urban, or forest (trunks for class-aware matching)"),
+    deskew: bool = typer.Option(True, "--deskew/--no-deskew", help="KISS-ICP's constant-velocity deskewing"),
     out: Path = typer.Option(Path("out/compare"), help="output directory"),
     preset: Preset = typer.Option(Preset.multibeam, help="PRC parameters for the prc variant"),
     config: Path | None = typer.Option(None, help="YAML config (prc, filter, odometry sections)"),
@@ -349,7 +358,8 @@ def compare(
             prc_labels[record.index] = record.frame.point_labels()
 
     try:
-        cfg = _run_config(preset, config)
+        cfg = _run_config(preset, config, mode)
+        cfg.odometry.deskew = cfg.odometry.deskew and deskew
         viewer = Viewer(rrd, connect, serve_web, log_every, serve_seconds=serve_seconds)
         result = _compare(input, names, cfg, fmt, max_frames, viewer, also=keep_labels)
     except (DataError, ValueError) as exc:
@@ -383,6 +393,9 @@ def compare(
 def odometry(
     input: Path = typer.Argument(..., help="KITTI directory, simulated sequence, or Ouster .npz files"),
     filter: FilterMode = typer.Option(FilterMode.prc, "--filter", help="none: every point; prc: PRC filter"),
+    matching: Matching = typer.Option(Matching.plain, help="plain KISS-ICP, or class-aware (needs --filter prc)"),
+    mode: Mode = typer.Option(Mode.urban, help="PRC classes: urban, or forest"),
+    deskew: bool = typer.Option(True, "--deskew/--no-deskew", help="KISS-ICP's constant-velocity deskewing"),
     preset: Preset = typer.Option(Preset.multibeam, help="PRC parameters"),
     config: Path | None = typer.Option(None, help="YAML config (prc, filter, odometry sections)"),
     poses_out: Path | None = typer.Option(None, help="write the trajectory here"),
@@ -399,9 +412,12 @@ def odometry(
     from data_tools import DataError
     from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
 
-    name = "raw" if filter is FilterMode.none else "prc"
+    if matching is Matching.class_aware and filter is FilterMode.none:
+        raise _fail("--matching class-aware needs PRC labels: use it with --filter prc")
+    name = "raw" if filter is FilterMode.none else "prc+classaware" if matching is Matching.class_aware else "prc"
     try:
-        cfg = _run_config(preset, config)
+        cfg = _run_config(preset, config, mode)
+        cfg.odometry.deskew = cfg.odometry.deskew and deskew
         result = _compare(input, [name], cfg, fmt, max_frames, Viewer(rrd, connect, serve_web, log_every))
     except (DataError, ValueError) as exc:
         raise _fail(str(exc)) from exc

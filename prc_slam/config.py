@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam.filtering import FilterConfig
 from prc_slam.mapclass.classify import MapClassConfig
+from prc_slam.odometry.classaware import ClassAwareConfig
 from prc_slam.odometry.kiss import OdometryConfig
 
 
@@ -94,6 +95,7 @@ class Config(BaseModel):
     filter: FilterConfig = Field(default_factory=FilterConfig)
     odometry: OdometryConfig = Field(default_factory=OdometryConfig)
     mapclass: MapClassConfig = Field(default_factory=MapClassConfig)
+    classaware: ClassAwareConfig = Field(default_factory=ClassAwareConfig)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Config:

@@ -22,7 +22,7 @@ from prc_slam.mapclass.objects import (
     segment_voxels,
 )
 from prc_slam.mapclass.tiles import array_chunks, classify_tiled
-from prc_slam.mapclass.voxels import VoxelGrid
+from prc_slam.voxels import VoxelGrid
 
 RNG = np.random.default_rng(0)
 

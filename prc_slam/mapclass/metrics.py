@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from prc_slam.mapclass.voxels import VoxelGrid, find
+from prc_slam.voxels import VoxelGrid, find
 
 
 def local_density(points: np.ndarray, voxel: float) -> tuple[np.ndarray, VoxelGrid]:

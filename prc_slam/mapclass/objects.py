@@ -12,7 +12,7 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from prc_slam.mapclass.metrics import segment_density
-from prc_slam.mapclass.voxels import VoxelGrid, find
+from prc_slam.voxels import VoxelGrid, find
 
 
 @njit(cache=True, nogil=True)

@@ -1,8 +1,10 @@
 """Run odometry variants side by side in one process over the same frames.
 
-Variants: ``raw`` (every point to KISS-ICP) and ``prc`` (PRC labels, then the filter policy of
-:mod:`prc_slam.filtering`, then KISS-ICP with the same settings). Each frame is read once and
-given to every variant in turn, so machine noise hits all variants alike.
+Variants: ``raw`` (every point to KISS-ICP), ``prc`` (PRC labels, then the filter policy of
+:mod:`prc_slam.filtering`, then KISS-ICP with the same settings) and ``prc+classaware`` (the
+same filtered points with their labels to :class:`~prc_slam.odometry.classaware.ClassAwareOdometry`).
+Each frame is read once and given to every variant in turn, so machine noise hits all variants
+alike.
 """
 
 from __future__ import annotations
@@ -17,12 +19,15 @@ import numpy as np
 from prc_slam import evaluation as E
 from prc_slam.config import Config
 from prc_slam.filtering import filter_points
+from prc_slam.odometry import classaware
+from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry
 from prc_slam.odometry.kiss import KissOdometry
 from prc_slam.pipeline import ClassifiedFrame, classify_frames
 from prc_slam.prc.algorithm import warm_up
 from prc_slam.scan import Scan
 
-VARIANTS = ("raw", "prc")
+VARIANTS = ("raw", "prc", "prc+classaware")
+DEFAULT_VARIANTS = ("raw", "prc")
 
 
 @dataclass
@@ -30,7 +35,7 @@ class VariantRun:
     """Per-frame record of one variant."""
 
     name: str
-    odometry: KissOdometry
+    odometry: KissOdometry | ClassAwareOdometry
     ms: dict[str, list[float]] = field(default_factory=lambda: {"prc": [], "filter": [], "icp": []})
     points_in: list[int] = field(default_factory=list)
     points_to_icp: list[int] = field(default_factory=list)
@@ -87,6 +92,12 @@ class CompareResult:
             if run.counts_in:
                 m["points_in_per_class"] = run.counts_in
                 m["points_kept_per_class"] = run.counts_kept
+            if isinstance(run.odometry, ClassAwareOdometry):
+                per_frame = np.array(run.odometry.correspondences).reshape(-1, len(GROUP_NAMES))
+                m["correspondences_per_group"] = {g: per_frame[:, i].tolist() for i, g in enumerate(GROUP_NAMES)}
+                m["correspondences_per_group_mean"] = {
+                    g: float(per_frame[:, i].mean()) for i, g in enumerate(GROUP_NAMES)
+                }
             if self.gt_poses is not None:
                 est = self.estimate_in_world(name)
                 m["ate_rmse_m"] = E.ate_rmse(est, self.gt_poses)
@@ -101,7 +112,7 @@ class CompareResult:
 def run_compare(
     scans: Iterable[Scan],
     config: Config,
-    variants: Iterable[str] = VARIANTS,
+    variants: Iterable[str] = DEFAULT_VARIANTS,
     on_frame: Callable[[FrameRecord], None] | None = None,
 ) -> CompareResult:
     """Run every variant over ``scans`` in one pass."""
@@ -109,8 +120,18 @@ def run_compare(
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
         raise ValueError(f"unknown variants {unknown}; choose from {list(VARIANTS)}")
-    runs = {v: VariantRun(v, KissOdometry(config.odometry)) for v in variants}
+    runs = {
+        v: VariantRun(
+            v,
+            ClassAwareOdometry(config.odometry, config.classaware)
+            if v == "prc+classaware"
+            else KissOdometry(config.odometry),
+        )
+        for v in variants
+    }
     warm_up()
+    if "prc+classaware" in variants:
+        classaware.warm_up()
     gt, times, names = [], [], []
     needs_prc = any(v != "raw" for v in variants)
     frames = classify_frames(scans, config.prc) if needs_prc else (ClassifiedFrame(s, None, 0.0) for s in scans)
@@ -120,13 +141,14 @@ def run_compare(
         t = scan.point_times()
         kept: dict[str, np.ndarray] = {}
         poses: dict[str, np.ndarray] = {}
+        labels = frame.point_labels() if needs_prc else None
         for name, run in runs.items():
             if name == "raw":
                 keep = np.ones(len(pts), dtype=bool)
             else:
                 run.ms["prc"].append(frame.seconds * 1e3)
                 t0 = time.perf_counter()
-                res = filter_points(pts, frame.point_labels(), config.filter, frame.point_one_sided())
+                res = filter_points(pts, labels, config.filter, frame.point_one_sided())
                 keep = res.keep
                 run.ms["filter"].append((time.perf_counter() - t0) * 1e3)
                 for k, n in res.counts_in.items():
@@ -134,7 +156,9 @@ def run_compare(
                 for k, n in res.counts_kept.items():
                     run.counts_kept[k] = run.counts_kept.get(k, 0) + n
             t0 = time.perf_counter()
-            poses[name] = run.odometry.register(pts[keep], None if t is None else t[keep])
+            poses[name] = run.odometry.register(
+                pts[keep], None if t is None else t[keep], None if labels is None else labels[keep]
+            )
             run.ms["icp"].append((time.perf_counter() - t0) * 1e3)
             run.points_in.append(len(pts))
             run.points_to_icp.append(int(keep.sum()))

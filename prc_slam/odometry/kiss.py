@@ -80,7 +80,9 @@ class KissOdometry:
         self.kiss = KissICP(kiss_config(self.config))
         self.poses: list[np.ndarray] = []
 
-    def register(self, points: np.ndarray, times: np.ndarray | None = None) -> np.ndarray:
+    def register(
+        self, points: np.ndarray, times: np.ndarray | None = None, labels: np.ndarray | None = None
+    ) -> np.ndarray:
         """Register one frame and return its pose (4x4, world = first frame).
 
         Parameters
@@ -90,6 +92,8 @@ class KissOdometry:
         times : float (N,), optional
             Acquisition time per point (s); normalised to [0, 1] over the frame for KISS-ICP's
             deskewing. Without times (or with ``deskew`` off) the frame is not deskewed.
+        labels : ignored
+            (The class-aware odometry's signature.)
         """
         pts = np.ascontiguousarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:

@@ -13,26 +13,14 @@ numbers here; the values below (``CoarseParams``) are ours and are exercised by 
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import config as numba_config
 from numba import njit, prange
 
 from prc_slam import labels as L
 from prc_slam.online import kernels as K
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
-
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    # numba's default tries TBB first and warns when the TBB it finds (pulled in by other
-    # packages) is too old: take OpenMP when numba has it, else its own work queue
-    try:
-        from numba.np.ufunc import omppool  # noqa: F401
-
-        numba_config.THREADING_LAYER = "omp"
-    except ImportError:
-        numba_config.THREADING_LAYER = "workqueue"
 
 
 def _uniform3() -> np.ndarray:

@@ -1,4 +1,5 @@
-"""Sparse voxel grids for the voxel-based metrics of paper 004 (Sec. 3.1, 3.3, 3.4, 4.2, 4.4).
+"""Sparse voxel grids, shared by the map classification (paper 004, Sec. 3.1, 3.3, 3.4, 4.2,
+4.4) and the class-aware registration's correspondence search.
 
 A grid is an open-addressing hash from integer voxel coordinates to a dense voxel index, built
 in one O(N) pass (no sort). Everything is numba; callers get arrays.

@@ -1,0 +1,443 @@
+"""Class-aware registration: correspondences never cross class groups (PRC paper, Sec. V:
+"points belonging to the same class can be matched together").
+
+KISS-ICP's pipeline with the map split by class group: each group of the frame is deskewed by
+KISS-ICP's preprocessor (constant-velocity model) and downsampled with KISS-ICP's voxel filter
+(0.5 and 1.5 voxel sizes), with KISS-ICP's adaptive threshold. KISS-ICP's voxel map and
+registration cannot carry labels, so those two are ours, in numba: :class:`GroupVoxelMap`
+(KISS-ICP's map rules, keyed by voxel and group) and :func:`icp` (KISS-ICP's point-to-point
+Gauss-Newton with the Geman-McClure kernel of the adaptive threshold sigma, weight
+``sigma^2 / (sigma + r^2)^2``, correspondences within 3 sigma), each residual further weighted
+by its group's weight.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+from pydantic import BaseModel, ConfigDict, Field
+
+from prc_slam import labels as L
+from prc_slam.odometry.kiss import OdometryConfig, kiss_config
+from prc_slam.voxels import _rehash, _slot, find
+
+#: class groups and the codes they hold; codes not listed fall into "other"
+GROUPS: dict[str, tuple[int, ...]] = {
+    "trunk": (L.TRUNK,),
+    "structure": (L.BUILDING, L.POLE),
+    "ground": (L.GROUND, L.CURB),
+    "vegetation": (L.VEGETATION,),
+    "other": (),
+}
+GROUP_NAMES = tuple(GROUPS)
+_OTHER = GROUP_NAMES.index("other")
+
+
+def group_of_codes() -> np.ndarray:
+    """``uint8[256]``: group index of every label code."""
+    table = np.full(256, _OTHER, dtype=np.uint8)
+    for gi, codes in enumerate(GROUPS.values()):
+        table[list(codes)] = gi
+    return table
+
+
+#: per-group weights by PRC mode, measured (README): in urban mode the spared one-sided "noise"
+#: in ``other`` is mostly thin poles, worth full weight; in forest mode it is crown and stem edges
+WEIGHTS = {
+    "urban": {"trunk": 1.0, "structure": 1.0, "ground": 1.0, "vegetation": 0.5, "other": 1.0},
+    "forest": {"trunk": 1.0, "structure": 1.0, "ground": 1.0, "vegetation": 0.1, "other": 0.5},
+}
+
+
+class ClassAwareConfig(BaseModel):
+    """Per-group weights of the residuals (0 leaves a group out of the registration; its map is
+    still kept). Defaults: the urban weights; :meth:`for_mode` gives those of a PRC mode."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    weights: dict[str, float] = Field(default_factory=lambda: dict(WEIGHTS["urban"]))
+
+    @classmethod
+    def for_mode(cls, mode: str) -> ClassAwareConfig:
+        if mode not in WEIGHTS:
+            raise ValueError(f"no class-aware weights for PRC mode {mode!r}; modes are {sorted(WEIGHTS)}")
+        return cls(weights=dict(WEIGHTS[mode]))
+
+    def weight_array(self) -> np.ndarray:
+        unknown = set(self.weights) - set(GROUP_NAMES)
+        if unknown:
+            raise ValueError(f"unknown class groups {sorted(unknown)}; groups are {list(GROUP_NAMES)}")
+        return np.array([float(self.weights.get(g, 1.0)) for g in GROUP_NAMES])
+
+
+# ---- the class-group voxel map ------------------------------------------------------------
+
+
+@njit(cache=True, nogil=True)
+def _add_points(table, coords, count, pts, n, points, groups, inv_voxel, m, min_d2):
+    """KISS-ICP's ``VoxelHashMap::AddPoints`` with the group as part of the voxel key: a point
+    joins its (voxel, group) unless the voxel holds ``m`` points or one closer than the map
+    resolution. ``table`` must have room for every point to open a voxel. Returns the new
+    voxel count."""
+    mask = table.shape[0] - 1
+    for i in range(points.shape[0]):
+        x = np.int64(np.floor(points[i, 0] * inv_voxel))
+        y = np.int64(np.floor(points[i, 1] * inv_voxel))
+        z = np.int64(np.floor(points[i, 2] * inv_voxel)) * 8 + groups[i]
+        h = _slot(x, y, z, mask)
+        while True:
+            v = table[h]
+            if v < 0:
+                table[h] = n
+                coords[n, 0], coords[n, 1], coords[n, 2] = x, y, z
+                pts[n * m] = points[i]
+                count[n] = 1
+                n += 1
+                break
+            if coords[v, 0] == x and coords[v, 1] == y and coords[v, 2] == z:
+                c = count[v]
+                if c < m:
+                    close = False
+                    for k in range(v * m, v * m + c):
+                        d2 = (
+                            (pts[k, 0] - points[i, 0]) ** 2
+                            + (pts[k, 1] - points[i, 1]) ** 2
+                            + (pts[k, 2] - points[i, 2]) ** 2
+                        )
+                        if d2 < min_d2:
+                            close = True
+                            break
+                    if not close:
+                        pts[v * m + c] = points[i]
+                        count[v] = c + 1
+                break
+            h = (h + 1) & mask
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _drop_far(count, pts, n, m, origin, max_d2):
+    """Empty the voxels whose first point lies farther than ``sqrt(max_d2)`` from ``origin``
+    (KISS-ICP's ``RemovePointsFarFromLocation``); returns how many voxels are empty."""
+    empty = 0
+    for v in range(n):
+        if count[v] > 0:
+            k = v * m
+            d2 = (pts[k, 0] - origin[0]) ** 2 + (pts[k, 1] - origin[1]) ** 2 + (pts[k, 2] - origin[2]) ** 2
+            if d2 > max_d2:
+                count[v] = 0
+        if count[v] == 0:
+            empty += 1
+    return empty
+
+
+class GroupVoxelMap:
+    """KISS-ICP's voxel hash map (voxel size, at most ``max_points_per_voxel`` per voxel, no two
+    points closer than ``voxel / sqrt(max_points_per_voxel)``, voxels beyond ``max_distance``
+    dropped) keyed by (voxel, class group), held in numpy arrays so that the numba ICP searches
+    it in place. ``_VoxelHashMap`` cannot carry labels, and copying four of its clouds out and
+    indexing them every frame cost more than the registration."""
+
+    def __init__(self, voxel: float, max_distance: float, max_points_per_voxel: int) -> None:
+        self.voxel, self.max_distance, self.m = float(voxel), float(max_distance), int(max_points_per_voxel)
+        self.min_d2 = (self.voxel / np.sqrt(self.m)) ** 2
+        self.n = 0
+        self._allocate(1024)
+
+    def _allocate(self, capacity: int) -> None:
+        self.coords = np.empty((capacity, 3), np.int64)
+        self.count = np.zeros(capacity, np.int64)
+        self.pts = np.empty((capacity * self.m, 3))
+        self.table = np.full(2 * capacity, -1, np.int64)  # a power of two, at most half full
+
+    def _resize(self, capacity: int) -> None:
+        """Keep the non-empty voxels in arrays of ``capacity`` voxels and rebuild the hash."""
+        alive = np.flatnonzero(self.count[: self.n] > 0)
+        coords, count = self.coords[alive], self.count[alive]
+        pts = self.pts.reshape(-1, self.m, 3)[alive]
+        self._allocate(capacity)
+        self.n = len(alive)
+        self.coords[: self.n], self.count[: self.n] = coords, count
+        self.pts.reshape(-1, self.m, 3)[: self.n] = pts
+        self.table = _rehash(self.coords, self.n, len(self.table))
+
+    def update(self, points: np.ndarray, groups: np.ndarray, pose: np.ndarray) -> None:
+        """Add sensor-frame ``points`` of ``groups`` at ``pose`` and drop far voxels."""
+        world = np.ascontiguousarray(points @ pose[:3, :3].T + pose[:3, 3])
+        capacity = len(self.count)
+        if self.n + len(world) > capacity:
+            self._resize(1 << int(np.ceil(np.log2(self.n + len(world) + 1))))
+        self.n = _add_points(
+            self.table, self.coords, self.count, self.pts, self.n, world, np.asarray(groups, np.int64),
+            1.0 / self.voxel, self.m, self.min_d2,
+        )  # fmt: skip
+        empty = _drop_far(self.count, self.pts, self.n, self.m, pose[:3, 3].copy(), self.max_distance**2)
+        if empty > self.n // 2 and self.n > 1024:
+            self._resize(len(self.count))
+
+    def index(self) -> tuple[np.ndarray, ...]:
+        """``(table, coords, first, count, points)`` for :func:`icp`."""
+        return self.table, self.coords, np.arange(self.n) * self.m, self.count[: self.n], self.pts
+
+    def point_cloud(self) -> tuple[np.ndarray, np.ndarray]:
+        """All map points (world frame) and their groups."""
+        keep = np.arange(self.m)[None, :] < self.count[: self.n, None]
+        pts = self.pts[: self.n * self.m].reshape(self.n, self.m, 3)[keep]
+        groups = np.repeat(
+            self.coords[: self.n, 2] - np.floor_divide(self.coords[: self.n, 2], 8) * 8, self.count[: self.n]
+        )
+        return pts, groups
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _nearest(p, g, table, coords, first, count, mpts, inv_voxel, max_d2):
+    """Index of the nearest map point of group ``g`` within the 27 voxels around ``p`` and within
+    ``sqrt(max_d2)``, or -1."""
+    kx = np.int64(np.floor(p[0] * inv_voxel))
+    ky = np.int64(np.floor(p[1] * inv_voxel))
+    kz = np.int64(np.floor(p[2] * inv_voxel))
+    best, best_d2 = -1, max_d2
+    for dx in range(-1, 2):
+        for dy in range(-1, 2):
+            for dz in range(-1, 2):
+                v = find(table, coords, kx + dx, ky + dy, (kz + dz) * 8 + g)
+                if v < 0:
+                    continue
+                for q in range(first[v], first[v] + count[v]):
+                    d2 = (mpts[q, 0] - p[0]) ** 2 + (mpts[q, 1] - p[1]) ** 2 + (mpts[q, 2] - p[2]) ** 2
+                    if d2 < best_d2:
+                        best, best_d2 = q, d2
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _exp_se3(dx):
+    """4x4 transform of the twist ``(t, w)`` (translation first, as KISS-ICP's Sophus update)."""
+    w = dx[3:]
+    theta = np.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2)
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if theta < 1e-12:
+        R = np.eye(3) + K
+        V = np.eye(3) + 0.5 * K
+    else:
+        a = np.sin(theta) / theta
+        b = (1 - np.cos(theta)) / theta**2
+        c = (1 - a) / theta**2
+        K2 = K @ K
+        R = np.eye(3) + a * K + b * K2
+        V = np.eye(3) + b * K + c * K2
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = V @ dx[:3]
+    return T
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _linearise(src, src_group, weights, table, coords, first, count, mpts, inv_voxel, max_d2, kernel, T, n_chunks):
+    """Gauss-Newton normal equations at ``T``, accumulated per chunk of source points in
+    parallel: ``H (C, 6, 6)``, ``b (C, 6)``, correspondences per chunk and group, and the group
+    matched by each source point (-1: none)."""
+    n = src.shape[0]
+    G = weights.shape[0]
+    H = np.zeros((n_chunks, 6, 6))
+    b = np.zeros((n_chunks, 6))
+    counts = np.zeros((n_chunks, G), np.int64)
+    partner = np.full(n, -1, np.int64)
+    R = T[:3, :3]
+    t = T[:3, 3]
+    step = (n + n_chunks - 1) // n_chunks
+    for c in prange(n_chunks):
+        p = np.empty(3)
+        r = np.empty(3)
+        J = np.zeros((3, 6))
+        J[0, 0] = J[1, 1] = J[2, 2] = 1.0
+        for i in range(c * step, min(n, (c + 1) * step)):
+            g = src_group[i]
+            if weights[g] <= 0:
+                continue
+            for k in range(3):
+                p[k] = R[k, 0] * src[i, 0] + R[k, 1] * src[i, 1] + R[k, 2] * src[i, 2] + t[k]
+            q = _nearest(p, g, table, coords, first, count, mpts, inv_voxel, max_d2)
+            if q < 0:
+                continue
+            counts[c, g] += 1
+            partner[i] = g
+            r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
+            rr = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+            w = weights[g] * kernel * kernel / ((kernel + rr) * (kernel + rr))
+            # J = [I, -[p]x]; only its rotational block changes from point to point
+            J[0, 4], J[0, 5] = p[2], -p[1]
+            J[1, 3], J[1, 5] = -p[2], p[0]
+            J[2, 3], J[2, 4] = p[1], -p[0]
+            for a in range(6):
+                ja0, ja1, ja2 = J[0, a], J[1, a], J[2, a]
+                b[c, a] += w * (ja0 * r[0] + ja1 * r[1] + ja2 * r[2])
+                for e in range(a, 6):
+                    H[c, a, e] += w * (ja0 * J[0, e] + ja1 * J[1, e] + ja2 * J[2, e])
+    return H, b, counts, partner
+
+
+@njit(cache=True, nogil=True)
+def icp(src, src_group, weights, table, coords, first, count, mpts, voxel, T0, max_dist, kernel, max_iter, tol):
+    """Point-to-point Gauss-Newton ICP of ``src`` (sensor frame) to the group maps (KISS-ICP's
+    update: ``T <- exp(dx) T`` until ``|dx| < tol``).
+
+    Parameters
+    ----------
+    src : float (n, 3)
+    src_group : int (n,)
+        Group of each source point; it is matched only to map points of that group.
+    weights : float (G,)
+        Per-group weight of the residuals.
+    T0 : float (4, 4)
+        Initial guess.
+    max_dist, kernel : float
+        Correspondence distance (3 sigma) and Geman-McClure scale (sigma).
+
+    Returns
+    -------
+    T : float (4, 4)
+    counts : int64 (G,)
+        Correspondences per group in the last iteration.
+    partner_group : int64 (n,)
+        Group of the map point matched to each source point in the last iteration (-1: none).
+    iterations : int
+    """
+    T = T0.copy()
+    counts = np.zeros(weights.shape[0], np.int64)
+    partner = np.full(src.shape[0], -1, np.int64)
+    iterations = 0
+    while iterations < max_iter:
+        iterations += 1
+        Hc, bc, cc, partner = _linearise(
+            src, src_group, weights, table, coords, first, count, mpts, 1.0 / voxel, max_dist * max_dist, kernel, T, 8
+        )
+        H = Hc.sum(axis=0)
+        b = bc.sum(axis=0)
+        counts = cc.sum(axis=0)
+        for a in range(6):
+            for e in range(a):
+                H[a, e] = H[e, a]
+        if counts.sum() < 6:
+            break
+        dx = np.linalg.solve(H + 1e-9 * np.eye(6), -b)
+        T = _exp_se3(dx) @ T
+        if np.sqrt((dx * dx).sum()) < tol:
+            break
+    return T, counts, partner, iterations
+
+
+# ---- the odometry --------------------------------------------------------------------------
+
+
+class ClassAwareOdometry:
+    """Frame-to-map odometry on a voxel map keyed by class group.
+
+    Parameters
+    ----------
+    config : OdometryConfig
+        KISS-ICP's settings (voxel size, ranges, deskewing, thresholds, iterations).
+    classes : ClassAwareConfig
+    """
+
+    def __init__(self, config: OdometryConfig | None = None, classes: ClassAwareConfig | None = None) -> None:
+        from kiss_icp.preprocess import get_preprocessor
+        from kiss_icp.threshold import get_threshold_estimator
+
+        self.config = config or OdometryConfig()
+        self.classes = classes or ClassAwareConfig()
+        self.kiss_config = kiss_config(self.config)
+        self.voxel = self.kiss_config.mapping.voxel_size
+        self.preprocessor = get_preprocessor(self.kiss_config)
+        self.adaptive_threshold = get_threshold_estimator(self.kiss_config)
+        self.map = GroupVoxelMap(self.voxel, self.config.max_range, self.config.max_points_per_voxel)
+        self.weights = self.classes.weight_array()
+        self.group_of = group_of_codes()
+        self.last_pose = np.eye(4)
+        self.last_delta = np.eye(4)
+        self.poses: list[np.ndarray] = []
+        self.correspondences: list[np.ndarray] = []  # per frame, per group
+        self.iterations: list[int] = []
+
+    @property
+    def threshold(self) -> float:
+        """The current adaptive correspondence threshold (sigma), as :class:`KissOdometry`'s."""
+        return float(self.adaptive_threshold.get_threshold())
+
+    def local_map_points(self) -> np.ndarray:
+        """Points of the map (world frame = first frame), ``float64[M, 3]``."""
+        return self.map.point_cloud()[0]
+
+    def register(
+        self, points: np.ndarray, times: np.ndarray | None = None, labels: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Register one frame and return its pose (4x4, world = first frame).
+
+        Parameters
+        ----------
+        points : float (N, 3)
+            Sensor-frame points (not modified).
+        times : float (N,), optional
+            Acquisition times for deskewing (normalised to [0, 1] over the frame).
+        labels : uint8 (N,), optional
+            Class code per point; without labels every point is in the "other" group.
+        """
+        from kiss_icp.voxelization import voxel_down_sample
+
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must be (N, 3), got {pts.shape}")
+        codes = np.full(len(pts), L.UNCLASSIFIED, np.uint8) if labels is None else np.asarray(labels, np.uint8)
+        if codes.shape != (len(pts),):
+            raise ValueError(f"{codes.size} labels for {len(pts)} points")
+        if times is not None and len(times) == len(pts) and len(pts):
+            t = np.asarray(times, dtype=np.float64)
+            span = float(t.max() - t.min())
+            stamps = (t - t.min()) / span if span > 0 else np.full(len(t), 0.5)
+        else:
+            stamps = None  # no deskewing (KISS-ICP's convention: empty timestamps)
+        group = self.group_of[codes]
+        downs, sources, src_groups = [], [], []
+        for gi in range(len(GROUP_NAMES)):
+            sel = group == gi
+            part = pts[sel]
+            if len(part):
+                # KISS-ICP's preprocessing (range crop, constant-velocity deskewing) per group,
+                # so that the groups stay apart
+                part = self.preprocessor.preprocess(
+                    part, np.zeros(0) if stamps is None else stamps[sel], self.last_delta
+                )
+            fd = voxel_down_sample(part, self.voxel * 0.5) if len(part) else np.zeros((0, 3))
+            src = voxel_down_sample(fd, self.voxel * 1.5) if len(fd) else np.zeros((0, 3))
+            downs.append(fd.reshape(-1, 3))
+            sources.append(src.reshape(-1, 3))
+            src_groups.append(np.full(len(src), gi, dtype=np.int64))
+        source = np.concatenate(sources)
+        source_group = np.concatenate(src_groups)
+        sigma = self.adaptive_threshold.get_threshold()
+        initial = self.last_pose @ self.last_delta
+        counts = np.zeros(len(GROUP_NAMES), np.int64)
+        new_pose, iters = initial, 0
+        if self.map.n and len(source):
+            new_pose, counts, _, iters = icp(
+                source, source_group, self.weights, *self.map.index(), self.voxel, initial, 3.0 * sigma, sigma,
+                self.config.max_num_iterations, self.config.convergence_criterion,
+            )  # fmt: skip
+        self.adaptive_threshold.update_model_deviation(np.linalg.inv(initial) @ new_pose)
+        down = np.concatenate(downs)
+        self.map.update(down, np.repeat(np.arange(len(GROUP_NAMES)), [len(d) for d in downs]), new_pose)
+        self.last_delta = np.linalg.inv(self.last_pose) @ new_pose
+        self.last_pose = new_pose
+        self.poses.append(new_pose.copy())
+        self.correspondences.append(counts)
+        self.iterations.append(int(iters))
+        return new_pose.copy()
+
+
+def warm_up() -> None:
+    """Compile the ICP kernels on a tiny case (numba caches them on disk afterwards)."""
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-5, 5, (200, 3))
+    odo = ClassAwareOdometry()
+    for _ in range(2):
+        odo.register(pts, None, np.full(len(pts), L.BUILDING, np.uint8))

@@ -1,0 +1,170 @@
+"""Class-aware registration: correspondences stay within class groups, a known motion is
+recovered, weights behave, and the forest walk's trajectory is guarded by a golden file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from data_tools import open_dataset
+from data_tools.sim.dataset import write_sequence
+from data_tools.sim.simulator import SimConfig, Simulator
+from prc_slam import labels as L
+from prc_slam.config import Config, PRCConfig
+from prc_slam.odometry.classaware import (
+    GROUP_NAMES,
+    ClassAwareConfig,
+    ClassAwareOdometry,
+    GroupVoxelMap,
+    group_of_codes,
+    icp,
+)
+from prc_slam.odometry.compare import run_compare
+from prc_slam.odometry.kiss import OdometryConfig
+from prc_slam.testing import assert_trajectory_close
+
+TRUNK, STRUCTURE, GROUND = (GROUP_NAMES.index(g) for g in ("trunk", "structure", "ground"))
+
+
+def test_groups_of_codes():
+    g = group_of_codes()
+    assert g[L.TRUNK] == TRUNK and g[L.BUILDING] == g[L.POLE] == STRUCTURE and g[L.CURB] == GROUND
+    assert g[L.VEHICLE] == g[L.UNCLASSIFIED] == GROUP_NAMES.index("other")
+    with pytest.raises(ValueError, match="unknown class groups"):
+        ClassAwareConfig(weights={"leaves": 1.0}).weight_array()
+    with pytest.raises(ValueError, match="no class-aware weights"):
+        ClassAwareConfig.for_mode("desert")
+    assert ClassAwareConfig.for_mode("forest").weights["vegetation"] < ClassAwareConfig().weights["vegetation"]
+
+
+def test_correspondences_never_cross_groups_even_when_nearer():
+    # map: a trunk point at the origin and a building point 0.4 m away; the source point is a
+    # building point 0.05 m from the trunk point: it must pair with the building point
+    gmap = GroupVoxelMap(1.0, 100.0, 20)
+    gmap.update(np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0]]), np.array([TRUNK, STRUCTURE]), np.eye(4))
+    index = gmap.index()
+    src = np.array([[0.05, 0.0, 0.0], [0.35, 0.0, 0.0]])
+    weights = np.ones(len(GROUP_NAMES))
+    for src_grp, expect in (([STRUCTURE, STRUCTURE], [STRUCTURE, STRUCTURE]), ([TRUNK, GROUND], [TRUNK, -1])):
+        _, counts, partner, _ = icp(
+            src, np.array(src_grp), weights, *index, 1.0, np.eye(4), 2.0, 1.0, 1, 1e-4
+        )  # fmt: skip
+        assert partner.tolist() == expect  # the ground point finds no ground in the map
+        assert counts.sum() == sum(e >= 0 for e in expect)
+
+
+def _room(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Ground, two walls at right angles, and trunks, with their codes."""
+    g = rng.uniform([-20, -20, 0], [20, 20, 0], (6000, 3))
+    w1 = np.column_stack([rng.uniform(-20, 20, 3000), np.full(3000, 15.0), rng.uniform(0, 6, 3000)])
+    w2 = np.column_stack([np.full(3000, -12.0), rng.uniform(-20, 20, 3000), rng.uniform(0, 6, 3000)])
+    trunks = []
+    for cx, cy in [(5, 3), (-4, -6), (8, -9), (-7, 7)]:
+        a, z = rng.uniform(0, 2 * np.pi, 600), rng.uniform(0, 5, 600)
+        trunks.append(np.column_stack([cx + 0.2 * np.cos(a), cy + 0.2 * np.sin(a), z]))
+    pts = np.concatenate([g, w1, w2, *trunks]) - [0, 0, 1.7]
+    codes = np.concatenate([np.full(6000, L.GROUND), np.full(6000, L.BUILDING), np.full(2400, L.TRUNK)])
+    return pts + rng.normal(0, 0.01, pts.shape), codes.astype(np.uint8)
+
+
+def test_two_frame_known_motion_is_recovered():
+    pts, codes = _room(np.random.default_rng(1))
+    c, s = np.cos(np.radians(2.0)), np.sin(np.radians(2.0))
+    motion = np.array([[c, -s, 0, 0.4], [s, c, 0, -0.1], [0, 0, 1, 0.02], [0, 0, 0, 1.0]])
+    moved = (pts - motion[:3, 3]) @ motion[:3, :3]  # the same scene seen from the moved sensor
+    odo = ClassAwareOdometry(OdometryConfig(deskew=False))
+    odo.register(pts, None, codes)
+    pose = odo.register(moved, None, codes)
+    assert np.linalg.norm(pose[:3, 3] - motion[:3, 3]) < 0.01
+    angle = np.degrees(np.arccos(np.clip((np.trace(pose[:3, :3].T @ motion[:3, :3]) - 1) / 2, -1, 1)))
+    assert angle < 0.05
+    assert odo.correspondences[-1][TRUNK] > 0 and odo.correspondences[-1][STRUCTURE] > 0
+    with pytest.raises(ValueError, match="labels"):
+        odo.register(pts, None, codes[:10])
+
+
+def test_zero_weight_leaves_a_group_out():
+    pts, codes = _room(np.random.default_rng(2))
+    odo = ClassAwareOdometry(OdometryConfig(deskew=False), ClassAwareConfig(weights={"trunk": 0.0}))
+    odo.register(pts, None, codes)
+    odo.register(pts, None, codes)
+    assert odo.correspondences[-1][TRUNK] == 0 and odo.correspondences[-1][GROUND] > 0
+
+
+@pytest.fixture(scope="module")
+def forest_walk(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sim") / "forest"
+    write_sequence(Simulator(SimConfig(scene="forest", sensor="vlp16", frames=30, seed=3, wind=0.3)), root)
+    return open_dataset(root)
+
+
+def test_golden_forest_walk(forest_walk, trajectory_regression):
+    # walking sway defeats constant-velocity deskewing (README): the forest runs go without it
+    cfg = Config(
+        prc=PRCConfig.preset("multibeam", mode="forest"),
+        odometry=OdometryConfig(deskew=False),
+        classaware=ClassAwareConfig.for_mode("forest"),
+    )
+    res = run_compare(iter(forest_walk), cfg, ["prc+classaware"])
+    est = res.estimate_in_world("prc+classaware")
+    assert_trajectory_close(est, forest_walk.poses, ate_tol=0.3, rpe_tol=0.3)
+    m = res.metrics()["variants"]["prc+classaware"]
+    assert len(m["correspondences_per_group"]["trunk"]) == 30 and m["correspondences_per_group_mean"]["trunk"] > 0
+    trajectory_regression.check(est, ate_tol=0.02, rpe_tol=0.02)
+
+
+def test_cli_class_aware_variant_and_matching(forest_walk, tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from prc_slam.cli import app
+
+    runner = CliRunner()
+    root = str(forest_walk.root)
+    bad = runner.invoke(app, ["odometry", root, "--filter", "none", "--matching", "class-aware"])
+    assert bad.exit_code == 2 and "needs PRC labels" in bad.output
+    res = runner.invoke(
+        app,
+        [
+            "odometry",
+            root,
+            "--matching",
+            "class-aware",
+            "--mode",
+            "forest",
+            "--max-frames",
+            "4",
+            "--json",
+            str(tmp_path / "o.json"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "o.json").read_text())["variants"]["prc+classaware"]
+    assert m["frames"] == 4 and set(m["correspondences_per_group"]) == set(GROUP_NAMES)
+    res = runner.invoke(
+        app, ["compare", root, "--variants", "prc,prc+magic", "--max-frames", "2", "--out", str(tmp_path)]
+    )
+    assert res.exit_code == 2 and "unknown variants" in res.output
+
+
+def test_group_voxel_map_follows_kiss_rules():
+    gmap = GroupVoxelMap(1.0, 10.0, 4)  # resolution 1 / sqrt(4) = 0.5 m
+    pts = np.array(
+        [[0.1, 0.1, 0.1], [0.2, 0.1, 0.1], [0.9, 0.9, 0.9], [0.1, 0.9, 0.1], [0.9, 0.1, 0.9], [0.5, 0.9, 0.9]]
+    )
+    gmap.update(pts, np.zeros(6, np.int64), np.eye(4))
+    cloud, groups = gmap.point_cloud()
+    # the second point is too close to the first; the voxel is full after four
+    assert len(cloud) == 4 and not np.any(np.all(cloud == pts[1], axis=1)) and (groups == 0).all()
+    gmap.update(pts[:1], np.array([STRUCTURE]), np.eye(4))  # same voxel, other group: its own voxel
+    assert len(gmap.point_cloud()[0]) == 5 and gmap.n == 2
+    far = np.eye(4)
+    far[:3, 3] = [50.0, 0.0, 0.0]
+    gmap.update(np.zeros((1, 3)), np.array([TRUNK]), far)  # moving away drops the old voxels
+    cloud, groups = gmap.point_cloud()
+    assert cloud.tolist() == [[50.0, 0.0, 0.0]] and groups.tolist() == [TRUNK]
+    many = np.random.default_rng(0).uniform(-9, 9, (5000, 3))
+    gmap.update(many, np.full(5000, GROUND), np.eye(4))  # grows and rehashes
+    cloud, groups = gmap.point_cloud()
+    assert len(cloud) > 2000 and (groups == GROUND).all()  # the trunk voxel is 50 m away now
