@@ -571,8 +571,18 @@ def _map_from_dataset(
     return accumulate(frames(), np.asarray(poses)[:n], times[:n])
 
 
-def _mapclass_outputs(points_source, n_points: int, cfg: Config, out: Path, tile: float | None, margin: float,
-                      reference=None, instance=None, prc=None) -> dict[str, Any]:  # fmt: skip
+def _mapclass_outputs(
+    points_source,
+    n_points: int,
+    cfg: Config,
+    out: Path,
+    tile: float | None,
+    margin: float,
+    reference=None,
+    instance=None,
+    prc=None,
+    viewer: Viewer | None = None,
+) -> dict[str, Any]:
     """Classify, write the per-class LAS files, score; returns the metrics. Tiled runs keep the
     labels in a memory-mapped scratch file (one byte per point), so the map never has to fit."""
     import tempfile
@@ -591,8 +601,10 @@ def _mapclass_outputs(points_source, n_points: int, cfg: Config, out: Path, tile
         )  # fmt: skip
         with ClassSplitWriter(out) as writer:
             start = 0
-            for chunk in points_source():
+            for part, chunk in enumerate(points_source()):
                 writer.write(chunk, labels[start : start + len(chunk)])
+                if viewer is not None and viewer.sink is not None:
+                    viewer.sink.log_map(chunk, labels[start : start + len(chunk)], part)
                 start += len(chunk)
         labels = np.array(labels) if reference is not None or prc is not None else None
         del store
@@ -635,6 +647,10 @@ def mapclass(
     max_frames: int | None = typer.Option(None, help="sequence: accumulate only the first N frames"),
     every: int = typer.Option(1, min=1, help="sequence: accumulate every n-th frame"),
     poses: Path | None = typer.Option(None, help="sequence: poses (KITTI format) instead of ground truth"),
+    rrd: Path | None = RRD_OPT,
+    connect: str | None = CONNECT_OPT,
+    serve_web: bool = SERVE_OPT,
+    map_voxel: float = typer.Option(0.2, "--map-voxel", min=0.0, help="thin the logged map to this voxel (m)"),
 ) -> None:
     """Classify a registered map after registration (paper 004) and segregate it into
     per-class LAS files; scored against reference labels when a sequence has them."""
@@ -648,9 +664,12 @@ def mapclass(
         cfg.mapclass = paper_config().model_copy(update={"normals": cfg.mapclass.normals})
     if normals is not None:
         cfg.mapclass.normals = normals.value
+    viewer = Viewer(rrd, connect, serve_web, 1, map_voxel=map_voxel)
     try:
         if is_cloud_file(input):
-            metrics = _mapclass_outputs(lambda: cloud_chunks(input), cloud_size(input), cfg, out, tile, margin)
+            metrics = _mapclass_outputs(
+                lambda: cloud_chunks(input), cloud_size(input), cfg, out, tile, margin, viewer=viewer
+            )
         else:
             dataset = open_dataset(input, fmt)
             n = len(dataset) if max_frames is None else min(max_frames, len(dataset))
@@ -658,10 +677,11 @@ def mapclass(
             console.print(f"accumulated {len(cloud):,} points from {len(range(0, n, every))} frames")
             metrics = _mapclass_outputs(
                 lambda: array_chunks(cloud.points), len(cloud), cfg, out, tile, margin,
-                cloud.attributes.get("reference"), cloud.attributes.get("instance"),
+                cloud.attributes.get("reference"), cloud.attributes.get("instance"), viewer=viewer,
             )  # fmt: skip
     except (DataError, ValueError) as exc:
         raise _fail(str(exc)) from exc
+    viewer.close()
     metrics["input"] = str(input)
     _print_mapclass(metrics, f"map classification of {input}")
     console.print(f"wrote {out}/map_classified.las and one LAS per class")

@@ -137,10 +137,24 @@ def test_mapclass_on_cloud_files_segregates_every_point(tmp_path):
     pts = _street_cloud()
     write_ply(tmp_path / "map.ply", pts)
     out = tmp_path / "out"
+    rrd = tmp_path / "map.rrd"
     res = runner.invoke(
-        app, ["mapclass", str(tmp_path / "map.ply"), "--out", str(out), "--json", str(tmp_path / "m.json")]
+        app,
+        [
+            "mapclass",
+            str(tmp_path / "map.ply"),
+            "--out",
+            str(out),
+            "--json",
+            str(tmp_path / "m.json"),
+            "--rrd",
+            str(rrd),
+        ],
     )
     assert res.exit_code == 0, res.output
+    import rerun.chunk as rc
+
+    assert "/world/map_classified/part_0" in {c.entity_path for c in rc.RrdReader(str(rrd)).store().stream()}
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["points"] == len(pts) == sum(m["counts"].values())
     combined = laspy.read(out / "map_classified.las")

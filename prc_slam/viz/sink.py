@@ -137,6 +137,22 @@ class RerunSink:
         self.rec.log("range_image/range", rr.DepthImage(scan.ranges, meter=1.0))
         self.rec.log("range_image/prc", rr.SegmentationImage(labels))
 
+    def log_map(self, points: np.ndarray, labels: np.ndarray, part: int = 0) -> None:
+        """One chunk of a classified map (paper 004), thinned to ``config.map_voxel``, static:
+        ``world/map_classified/part_N`` coloured by class."""
+        points = np.asarray(points, dtype=np.float64)
+        ok = np.isfinite(points).all(axis=1)
+        pts, lab = points[ok], np.asarray(labels)[ok]
+        if self.config.map_voxel > 0 and len(pts):
+            v = np.floor(pts / self.config.map_voxel).astype(np.int64) & 0x1FFFFF
+            _, first = np.unique((v[:, 0] << 42) | (v[:, 1] << 21) | v[:, 2], return_index=True)
+            pts, lab = pts[first], lab[first]
+        self.rec.log(
+            f"world/map_classified/part_{part}",
+            rr.Points3D(pts, class_ids=lab.astype(np.uint16), radii=0.05),
+            static=True,
+        )
+
     def log_online(self, index: int, scan, result, pose: np.ndarray | None = None) -> None:
         """Online detector output: ``range_image/online``, the detector labels of every point
         (``world/sensor/online``), ``world/detections/curbs`` (polylines) and
