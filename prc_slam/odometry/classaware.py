@@ -18,7 +18,7 @@ from numba import njit, prange
 from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam import labels as L
-from prc_slam.odometry.kiss import OdometryConfig, kiss_config
+from prc_slam.odometry.kiss import OdometryConfig, deskew_stamps, kiss_config
 from prc_slam.voxels import _rehash, _slot, find
 
 #: class groups and the codes they hold; codes not listed fall into "other"
@@ -390,12 +390,7 @@ class ClassAwareOdometry:
         codes = np.full(len(pts), L.UNCLASSIFIED, np.uint8) if labels is None else np.asarray(labels, np.uint8)
         if codes.shape != (len(pts),):
             raise ValueError(f"{codes.size} labels for {len(pts)} points")
-        if times is not None and len(times) == len(pts) and len(pts):
-            t = np.asarray(times, dtype=np.float64)
-            span = float(t.max() - t.min())
-            stamps = (t - t.min()) / span if span > 0 else np.full(len(t), 0.5)
-        else:
-            stamps = None  # no deskewing (KISS-ICP's convention: empty timestamps)
+        stamps = deskew_stamps(times, len(pts))
         group = self.group_of[codes]
         downs, sources, src_groups = [], [], []
         for gi in range(len(GROUP_NAMES)):
@@ -404,9 +399,7 @@ class ClassAwareOdometry:
             if len(part):
                 # KISS-ICP's preprocessing (range crop, constant-velocity deskewing) per group,
                 # so that the groups stay apart
-                part = self.preprocessor.preprocess(
-                    part, np.zeros(0) if stamps is None else stamps[sel], self.last_delta
-                )
+                part = self.preprocessor.preprocess(part, stamps[sel] if len(stamps) else stamps, self.last_delta)
             fd = voxel_down_sample(part, self.voxel * 0.5) if len(part) else np.zeros((0, 3))
             src = voxel_down_sample(fd, self.voxel * 1.5) if len(fd) else np.zeros((0, 3))
             downs.append(fd.reshape(-1, 3))

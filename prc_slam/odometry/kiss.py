@@ -65,6 +65,16 @@ def kiss_config(config: OdometryConfig):
         )
 
 
+def deskew_stamps(times: np.ndarray | None, n: int) -> np.ndarray:
+    """Per-point times normalised to [0, 1] over the frame for KISS-ICP's deskewing; an empty
+    array (KISS-ICP's "do not deskew") without times for every point."""
+    if times is None or len(times) != n or n == 0:
+        return np.zeros(0)
+    t = np.asarray(times, dtype=np.float64)
+    span = float(t.max() - t.min())
+    return (t - t.min()) / span if span > 0 else np.full(n, 0.5)
+
+
 class KissOdometry:
     """Frame-to-map odometry with KISS-ICP; poses start at the identity.
 
@@ -98,13 +108,7 @@ class KissOdometry:
         pts = np.ascontiguousarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"points must be (N, 3), got {pts.shape}")
-        if times is not None and len(times) == len(pts) and len(pts):
-            t = np.asarray(times, dtype=np.float64)
-            span = float(t.max() - t.min())
-            stamps = (t - t.min()) / span if span > 0 else np.full(len(t), 0.5)
-        else:
-            stamps = np.zeros(0)
-        self.kiss.register_frame(pts, stamps)
+        self.kiss.register_frame(pts, deskew_stamps(times, len(pts)))
         pose = self.kiss.last_pose.copy()
         self.poses.append(pose)
         return pose

@@ -80,13 +80,18 @@ def default_blueprint() -> rrb.Blueprint:
     )
 
 
-def _thin(points: np.ndarray, voxel: float) -> np.ndarray:
+def _thin_index(points: np.ndarray, voxel: float) -> np.ndarray:
+    """Indices of the first point in every voxel (all points when ``voxel`` is 0)."""
     if len(points) == 0 or voxel <= 0:
-        return points
+        return np.arange(len(points))
     v = np.floor(points / voxel).astype(np.int64) & 0x1FFFFF  # 21 bits per axis
     keys = (v[:, 0] << 42) | (v[:, 1] << 21) | v[:, 2]
     _, first = np.unique(keys, return_index=True)
-    return points[np.sort(first)]
+    return np.sort(first)
+
+
+def _thin(points: np.ndarray, voxel: float) -> np.ndarray:
+    return points[_thin_index(points, voxel)]
 
 
 class RerunSink:
@@ -143,10 +148,8 @@ class RerunSink:
         points = np.asarray(points, dtype=np.float64)
         ok = np.isfinite(points).all(axis=1)
         pts, lab = points[ok], np.asarray(labels)[ok]
-        if self.config.map_voxel > 0 and len(pts):
-            v = np.floor(pts / self.config.map_voxel).astype(np.int64) & 0x1FFFFF
-            _, first = np.unique((v[:, 0] << 42) | (v[:, 1] << 21) | v[:, 2], return_index=True)
-            pts, lab = pts[first], lab[first]
+        keep = _thin_index(pts, self.config.map_voxel)
+        pts, lab = pts[keep], lab[keep]
         self.rec.log(
             f"world/map_classified/part_{part}",
             rr.Points3D(pts, class_ids=lab.astype(np.uint16), radii=0.05),
