@@ -88,9 +88,3 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
         xyz = _check(path, _open3d_points(path))
     for i in range(0, len(xyz), chunk):
         yield np.asarray(xyz[i : i + chunk], dtype=np.float64)
-
-
-def read_cloud(path: str | Path) -> np.ndarray:
-    """The whole cloud, ``float64 (N, 3)``."""
-    parts = list(cloud_chunks(path))
-    return np.concatenate(parts) if parts else np.zeros((0, 3))

@@ -13,7 +13,7 @@ import numpy as np
 from prc_slam import labels as L
 from prc_slam.evaluation import ConfusionAccumulator, objects_found
 from prc_slam.mapclass import MapClassConfig, classify_map
-from prc_slam.mapclass.tiles import array_chunks, classify_tiled
+from prc_slam.mapclass.tiles import classify_tiled
 
 #: paper 004's classes, scored point by point
 MAP_CLASSES = [L.GROUND, L.BUILDING, L.VEHICLE, L.POLE, L.VEGETATION]
@@ -101,11 +101,6 @@ def run_mapclass(
         "margin": margin if tile > 0 else None,
     }
     return labels, metrics
-
-
-def run_mapclass_array(points: np.ndarray, config: MapClassConfig, **options: Any) -> tuple[np.ndarray, dict[str, Any]]:
-    """:func:`run_mapclass` on an in-memory cloud."""
-    return run_mapclass(lambda: array_chunks(points), len(points), config, **options)
 
 
 def prc_agreement(prc_labels: np.ndarray, map_labels: np.ndarray) -> dict[str, Any]:

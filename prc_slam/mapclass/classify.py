@@ -61,6 +61,7 @@ class VehicleParams(_Params):
     max_height: float = Field(3.5, gt=0)
     max_ground_gap: float = Field(0.6, ge=0, description="segment bottom above the nearby ground (m)")
     max_verticality: float = Field(0.6, ge=0, le=1, description="mean verticality of a car (1 = paper)")
+    skip_foliage: bool = Field(True, description="segments or groups mostly of foliage are no cars; False = paper")
     group_voxel: float = Field(0.3, ge=0, description="also test touching segments as one (voxel, m); 0 = paper")
 
 
@@ -107,7 +108,7 @@ def paper_config() -> MapClassConfig:
     per-point formulation)."""
     return MapClassConfig(
         building=BuildingParams(min_height=0.0, min_reach=0.0, spare_objects=False),
-        vehicle=VehicleParams(max_verticality=1.0, group_voxel=0.0),
+        vehicle=VehicleParams(max_verticality=1.0, group_voxel=0.0, skip_foliage=False),
         vegetation=VegetationParams(foliage_only=False),
     )
 
@@ -122,10 +123,6 @@ class MapResult:
     verticality: np.ndarray
     seconds: dict[str, float] = field(default_factory=dict)
     nonfinite: int = 0
-
-    def counts(self) -> dict[str, int]:
-        c = np.bincount(self.labels, minlength=256)
-        return {L.CODE_TO_NAME.get(int(k), f"code_{k}"): int(c[k]) for k in np.flatnonzero(c)}
 
 
 class _Clock:
@@ -231,7 +228,8 @@ def _classify_finite(pts: np.ndarray, cfg: MapClassConfig, clock: _Clock) -> tup
         ("vehicles", L.VEHICLE, lambda t: detect_vehicles(
             t["p"], t["seg"], ground_pts, c.min_points, (c.min_length, c.max_length), c.max_width,
             (c.min_height, c.max_height), c.max_ground_gap, cfg.small_segment_points, c.group_voxel,
-            t["foliage"], t["vert"], c.max_verticality, t["post"] if c.group_voxel > 0 else None)),
+            t["foliage"] if c.skip_foliage else None, t["vert"], c.max_verticality,
+            t["post"] if c.group_voxel > 0 else None)),
         ("posts", L.POLE, lambda t: detect_posts(
             t["p"], t["seg"], q.voxel, q.min_voxel_points, q.max_extent, q.min_height, cfg.small_segment_points)),
         ("vegetation", L.VEGETATION, lambda t: detect_vegetation(
