@@ -475,7 +475,7 @@ def detect(
     detector = OnlineDetector()
     confusion = ConfusionAccumulator()
     have_gt, points, seconds, curbs = False, 0, 0.0, 0
-    cars_found = cars_present = 0
+    objects = {L.VEHICLE: np.zeros(2, int), L.CURB: np.zeros(2, int)}  # found, present, summed over frames
     collector = LasCollector(las)
     with _progress() as progress:
         task = progress.add_task("online detectors", total=n)
@@ -496,9 +496,9 @@ def detect(
                 have_gt = True
                 confusion.add(ref, codes)
             if scan.gt_labels is not None and scan.gt_instance is not None:
-                found, present = objects_found(scan.gt_labels, scan.gt_instance, result.labels, L.VEHICLE)
-                cars_found += found
-                cars_present += present
+                for code in (L.VEHICLE, L.CURB):
+                    found, present = objects_found(scan.gt_labels, scan.gt_instance, result.labels, code)
+                    objects[code] += np.array([found, present])
             collector.add(scan, codes)
             if viewer.sink is not None:
                 viewer.sink.log_classified(i, scan, result.labels)
@@ -516,8 +516,10 @@ def detect(
     if have_gt:
         metrics["per_class"] = confusion.per_class()
         metrics["confusion"] = confusion.to_json()
-        # vehicle objects per frame; curb objects need per-curb instances the references lack
-        metrics["objects"] = {"vehicle": {"found": cars_found, "present": cars_present}}
+        # per frame: vehicles, and curb sections (simulated scenes; SemanticKITTI has no curbs)
+        metrics["objects"] = {
+            L.CODE_TO_NAME[code]: {"found": int(fp[0]), "present": int(fp[1])} for code, fp in objects.items()
+        }
     collector.write()
     console.print(
         f"{n} frames, {points} points, detectors {seconds:.2f} s"

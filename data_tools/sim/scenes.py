@@ -75,6 +75,7 @@ class UrbanParams:
     camber: float = 0.004  # z = -camber * d^2 across the road
     roughness: float = 0.012  # std of the road's small-scale relief
     curb_height: tuple[float, float] = (0.10, 0.15)
+    curb_section: float = 10.0  # curbs are instances of this length (the objects curb detection counts)
     sidewalk_width: float = 3.0
     building_height: tuple[float, float] = (6.0, 22.0)
     car_gap: tuple[float, float] = (1.0, 14.0)
@@ -116,6 +117,7 @@ def urban_street(seed: int = 0, params: UrbanParams | None = None) -> Scene:
     b = MeshBuilder()
     W, Ws = p.road_half_width, p.sidewalk_width
     s_grid = np.arange(0, cl.length + 1e-9, 0.5)
+    curb_step, curb_sections = max(round(p.curb_section / 0.5), 1), 0
 
     # road surface with camber, slope (centreline height) and roughness
     d_road = np.linspace(-W, W, 41)
@@ -129,11 +131,12 @@ def urban_street(seed: int = 0, params: UrbanParams | None = None) -> Scene:
     for side in (-1, 1):
         edge_z = z[:, 0] - p.camber * W**2 if side < 0 else z[:, -1] - p.camber * W**2
         h = curb_h[side]
-        # curb face: vertical strip at d = side*W
+        # curb face: vertical strip at d = side*W, one instance per curb_section metres
         xy_c, _, _ = cl.at(s_grid, side * W)
-        bottom = np.column_stack([xy_c, edge_z - 0.02])
-        top = np.column_stack([xy_c, edge_z + h])
-        b.grid(np.stack([bottom, top], axis=1), L.CURB, reflectivity=0.4)
+        face = np.stack([np.column_stack([xy_c, edge_z - 0.02]), np.column_stack([xy_c, edge_z + h])], axis=1)
+        for i in range(0, len(s_grid) - 1, curb_step):
+            b.grid(face[i : i + curb_step + 1], L.CURB, reflectivity=0.4, instance=b.new_instance())
+            curb_sections += 1
         # sidewalk, slightly sloped towards the road
         d_sw = side * np.linspace(W, W + Ws, 7)
         S2, D2 = np.meshgrid(s_grid, d_sw, indexing="ij")
@@ -148,7 +151,15 @@ def urban_street(seed: int = 0, params: UrbanParams | None = None) -> Scene:
         zt += rng.normal(0, 0.03, S3.shape) * (np.abs(D3) > W + Ws + 0.5)
         b.grid(np.dstack([xy3, zt]), L.GROUND, reflectivity=0.3)
 
-    counts = {"buildings": 0, "cars": 0, "poles": 0, "trees": 0, "bushes": 0, "curbs": 2}
+    counts = {
+        "buildings": 0,
+        "cars": 0,
+        "poles": 0,
+        "trees": 0,
+        "bushes": 0,
+        "curbs": 2,
+        "curb_sections": curb_sections,
+    }
     for side in (-1, 1):
         base_h = curb_h[side]
         # buildings
