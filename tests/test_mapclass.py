@@ -381,3 +381,20 @@ def test_simulated_urban_map(urban_map):
     assert pc["building"]["precision"] > 0.95 and pc["building"]["recall"] > 0.85
     assert pc["vehicle"]["precision"] > 0.95 and pc["vehicle"]["recall"] > 0.85
     assert s["objects"]["vehicle"]["found"] >= 1 and s["objects"]["vehicle"]["present"] >= 5
+
+
+def test_stems_under_a_crown_are_not_posts():
+    from prc_slam.mapclass.objects import under_crown
+
+    stem = pole(0, 0, 4.0)
+    crown = bush(0.3, 0.0, radius=1.5) + [0, 0, 3.5]  # foliage from 3.5 m up, right above the stem
+    lamp = pole(10, 0, 4.0)
+    pts = np.concatenate([stem, crown, lamp])
+    foliage = np.r_[np.zeros(len(stem), bool), np.ones(len(crown), bool), np.zeros(len(lamp), bool)]
+    under = under_crown(pts, foliage)
+    assert under[: len(stem)].all() and not under[-len(lamp) :].any()
+    # end to end: the stem goes to vegetation, the lamp post stays a post
+    ground = plane(-5, 15, -5, 5)
+    res = classify_map(np.concatenate([ground, pts]))
+    lab = res.labels[len(ground) :]
+    assert (lab[: len(stem)] == L.VEGETATION).mean() > 0.6 and (lab[-len(lamp) :] == L.POLE).mean() > 0.8

@@ -25,6 +25,7 @@ from prc_slam.mapclass.objects import (
     detect_vegetation,
     detect_vehicles,
     segment_voxels,
+    under_crown,
 )
 
 
@@ -70,6 +71,7 @@ class PostParams(_Params):
     min_voxel_points: int = Field(3, ge=1, description="a voxel with fewer points is empty")
     max_extent: float = Field(1.0, gt=0, description="horizontal reach of filled voxels (m)")
     min_height: float = Field(1.5, gt=0)
+    skip_stems: bool = Field(True, description="pillars under foliage are stems, left to vegetation; False = paper")
 
 
 class VegetationParams(_Params):
@@ -110,6 +112,7 @@ def paper_config() -> MapClassConfig:
         building=BuildingParams(min_height=0.0, min_reach=0.0, spare_objects=False),
         vehicle=VehicleParams(max_verticality=1.0, group_voxel=0.0, skip_foliage=False),
         vegetation=VegetationParams(foliage_only=False),
+        post=PostParams(skip_stems=False),
     )
 
 
@@ -220,6 +223,15 @@ def _classify_finite(pts: np.ndarray, cfg: MapClassConfig, clock: _Clock) -> tup
     # Sec. 4.2-4.5, each on what the previous steps left
     b, c = cfg.building, cfg.vehicle
     pt = {"p": p, "seg": seg, "vert": v, "foliage": foliage, "post": post}
+
+    def posts_not_stems(t: dict[str, np.ndarray]) -> np.ndarray:
+        """Sec. 4.4 posts; with ``skip_stems`` those under foliage are stems (next step)."""
+        pillar = detect_posts(
+            t["p"], t["seg"], q.voxel, q.min_voxel_points, q.max_extent, q.min_height, cfg.small_segment_points
+        )
+        t["stem"] = pillar & under_crown(t["p"], t["foliage"]) if q.skip_stems else np.zeros(len(pillar), bool)
+        return pillar & ~t["stem"]
+
     steps = [
         ("buildings", L.BUILDING, lambda t: detect_buildings(
             t["p"], t["seg"], t["vert"], b.min_segment_points, b.min_verticality, b.min_height, b.near, b.close,
@@ -230,8 +242,8 @@ def _classify_finite(pts: np.ndarray, cfg: MapClassConfig, clock: _Clock) -> tup
             (c.min_height, c.max_height), c.max_ground_gap, cfg.small_segment_points, c.group_voxel,
             t["foliage"] if c.skip_foliage else None, t["vert"], c.max_verticality,
             t["post"] if c.group_voxel > 0 else None)),
-        ("posts", L.POLE, lambda t: detect_posts(
-            t["p"], t["seg"], q.voxel, q.min_voxel_points, q.max_extent, q.min_height, cfg.small_segment_points)),
+        ("posts", L.POLE, posts_not_stems),
+        ("stems", L.VEGETATION, lambda t: t["stem"]),
         ("vegetation", L.VEGETATION, lambda t: detect_vegetation(
             t["p"], t["seg"], scene, e.voxel, e.factor, e.min_similar)
             & (t["foliage"] if e.foliage_only else True)),

@@ -377,6 +377,31 @@ def detect_posts(
     return post | adjacent_small_segments(points, segment, post, small_segment_points)
 
 
+def under_crown(points: np.ndarray, crown: np.ndarray, cell: float = 1.0, reach: int = 1) -> np.ndarray:
+    """Points whose x-y cell (or a neighbour within ``reach`` cells) holds ``crown`` points
+    higher than the point: a stem under its crown rather than a lamp post or a sign."""
+    if len(points) == 0 or not crown.any():
+        return np.zeros(len(points), dtype=bool)
+    flat = np.column_stack([points[:, :2], np.zeros(len(points))])
+    grid = VoxelGrid.build(flat, cell)
+    top = np.full(grid.n_voxels, -np.inf)
+    np.maximum.at(top, grid.voxel[crown], points[crown, 2])
+    best = _planar_max(grid.table, grid.coords, top, reach)
+    return best[grid.voxel] > points[:, 2]
+
+
+@njit(cache=True, nogil=True)
+def _planar_max(table, coords, values, radius):
+    out = np.full(values.shape[0], -np.inf)
+    for v in range(coords.shape[0]):
+        for dx in range(-radius, radius + 1):
+            for dy in range(-radius, radius + 1):
+                u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, 0)
+                if u >= 0 and values[u] > out[v]:
+                    out[v] = values[u]
+    return out
+
+
 def detect_vegetation(
     points: np.ndarray,
     segment: np.ndarray,
