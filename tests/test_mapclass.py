@@ -387,7 +387,7 @@ def test_stems_under_a_crown_are_not_posts():
     from prc_slam.mapclass.objects import under_crown
 
     stem = pole(0, 0, 4.0)
-    crown = bush(0.3, 0.0, radius=1.5) + [0, 0, 3.5]  # foliage from 3.5 m up, right above the stem
+    crown = bush(0.3, 0.0, radius=1.5) + np.array([0, 0, 3.5])  # foliage from 3.5 m up, right above the stem
     lamp = pole(10, 0, 4.0)
     pts = np.concatenate([stem, crown, lamp])
     foliage = np.r_[np.zeros(len(stem), bool), np.ones(len(crown), bool), np.zeros(len(lamp), bool)]
