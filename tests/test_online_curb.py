@@ -113,3 +113,28 @@ def test_vehicle_objects_found_hand_computed():
     lab = np.array([[65, 0, 0, 2], [0, 0, 0, 0], [65, 0, 0, 0]])
     # car 1: 1 of 3 returns (>= 30 %) found; car 2: 0 of 2 missed; car 3: 1 return, too small to count
     assert objects_found(gt, inst, lab, 65, min_points=2, share=0.3) == (1, 2)
+
+
+def test_profiler_defaults_and_the_car_height_floor():
+    from data_tools.sim.simulator import SimConfig, Simulator
+    from prc_slam.online.car import CarParams, detect_cars
+    from prc_slam.online.coarse import coarse_classify
+    from prc_slam.online.detector import OnlineDetector, default_coarse_params
+    from prc_slam.scan import Scan
+
+    sim = Simulator(SimConfig(sensor="profiler-urban", frames=4, lines_per_frame=99))
+    scans = [Scan(sim.frame(i).ranges, sim.sensor.model) for i in range(4)]
+    assert default_coarse_params(scans[0]).min_step == 0.1  # profilers: 0.1 m baseline
+    spinning = Simulator(SimConfig(frames=1))
+    assert default_coarse_params(Scan(spinning.frame(0).ranges, spinning.sensor.model)).min_step == 0.0
+    det = OnlineDetector()
+    for s in scans:
+        det.process(s)
+    z_ground = det.ground.height
+    assert z_ground is not None
+    coarse = coarse_classify(scans[-1], default_coarse_params(scans[-1]))
+    z = scans[-1].slot_xyz()[..., 2]
+    paper = detect_cars(scans[-1], coarse, z_ground, params=CarParams(min_above_ground=0.0)).mask
+    ours = detect_cars(scans[-1], coarse, z_ground).mask
+    assert (paper & (z < z_ground + 0.3)).any()  # the paper's cars reach down to the road
+    assert not (ours & (z < z_ground + 0.3)).any() and (ours == (paper & (z >= z_ground + 0.3))).all()

@@ -252,6 +252,9 @@ class CarParams:
     t_height: float = 2.0
     t_high_vertical: float = 2.5
     min_len: int = 4
+    # beyond the paper (0 = paper): returns lower than this above the ground height are no car
+    # points; on profiler-urban the paper's cars took 21 % road and sidewalk (precision 0.72 -> 0.92)
+    min_above_ground: float = 0.3
 
 
 @dataclass
@@ -304,6 +307,8 @@ def detect_cars(
         p.t_high_vertical,
         p.min_len,
     ).reshape(scan.shape)
+    if p.min_above_ground > 0:
+        car &= scan.slot_xyz()[..., 2] >= z_ground + p.min_above_ground
     instances, boxes = car_instances(car, scan.slot_xyz())
     return CarResult(car, instances, boxes)
 

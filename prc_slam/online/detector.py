@@ -17,7 +17,7 @@ from prc_slam.online.car import CarParams, detect_cars
 from prc_slam.online.coarse import CoarseParams, CoarseResult, coarse_classify
 from prc_slam.online.curb import CurbParams, detect_curbs
 from prc_slam.online.ground import GroundDetector, GroundParams
-from prc_slam.scan import Scan
+from prc_slam.scan import ProfilerSensor, Scan
 
 
 @dataclass
@@ -33,6 +33,15 @@ class OnlineResult:
     seconds: float = 0.0
 
 
+def default_coarse_params(scan: Scan) -> CoarseParams:
+    """The paper's coarse classifier, except on profilers: there signed angles are taken over
+    at least 0.1 m (``min_step``), since a dense profile's ~1 cm point spacing equals its range
+    noise. Measured on 12 simulated profiler-urban frames: ground recall 0.05 -> 0.61, vehicle
+    0.05 / 0.10 -> 0.92 / 0.93 (with ``CarParams.min_above_ground``). On hdl64 columns it would
+    erase the curbs (curb recall 0.32 -> 0.04), so spinning sensors keep the paper's steps."""
+    return CoarseParams(min_step=0.1) if isinstance(scan.sensor, ProfilerSensor) else CoarseParams()
+
+
 class OnlineDetector:
     """Streaming detectors; the ground height estimate carries over from scan to scan."""
 
@@ -43,7 +52,7 @@ class OnlineDetector:
         curb: CurbParams | None = None,
         car: CarParams | None = None,
     ) -> None:
-        self.coarse_params = coarse or CoarseParams()
+        self.coarse_params = coarse
         self.curb_params = curb or CurbParams()
         self.car_params = car or CarParams()
         self.ground = GroundDetector(ground)
@@ -51,7 +60,7 @@ class OnlineDetector:
     def process(self, scan: Scan) -> OnlineResult:
         """Label every slot of ``scan``."""
         t0 = time.perf_counter()
-        coarse = coarse_classify(scan, self.coarse_params)
+        coarse = coarse_classify(scan, self.coarse_params or default_coarse_params(scan))
         ground = self.ground.process(scan, coarse)
         curbs = detect_curbs(scan, coarse, ground, self.ground.height, self.curb_params)
         cars = detect_cars(scan, coarse, self.ground.height, curbs.mask, self.car_params)
