@@ -308,8 +308,8 @@ def detect_cars(
         p.min_len,
     ).reshape(scan.shape)
     if p.min_above_ground > 0:
-        car &= scan.slot_xyz()[..., 2] >= z_ground + p.min_above_ground
-    instances, boxes = car_instances(car, scan.slot_xyz())
+        car &= xyz[:, 2].reshape(scan.shape) >= z_ground + p.min_above_ground
+    instances, boxes = car_instances(car, xyz)
     return CarResult(car, instances, boxes)
 
 
