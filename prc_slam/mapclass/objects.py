@@ -147,20 +147,8 @@ def ground_height_grid(ground: np.ndarray, cell: float, radius: int) -> tuple[Vo
     flat = np.column_stack([ground[:, :2], np.zeros(len(ground))])
     grid = VoxelGrid.build(flat, cell)
     sums = np.column_stack([np.bincount(grid.voxel, weights=ground[:, 2]), grid.counts])
-    agg = _planar_sum(grid.table, grid.coords, sums, radius)
+    agg = grid.neighbourhood_sum(sums, radius)  # a flat grid: only the z = 0 layer is occupied
     return grid, agg[:, 0] / agg[:, 1]
-
-
-@njit(cache=True, nogil=True)
-def _planar_sum(table, coords, values, radius):
-    out = np.zeros_like(values)
-    for v in range(coords.shape[0]):
-        for dx in range(-radius, radius + 1):
-            for dy in range(-radius, radius + 1):
-                u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, 0)
-                if u >= 0:
-                    out[v] += values[u]
-    return out
 
 
 @njit(cache=True, nogil=True)
