@@ -152,22 +152,32 @@ def bench_viz(frames: int = 40, rounds: int = 4) -> dict[str, Any]:
     }
 
 
-def bench_online(frames: int = 10) -> dict[str, Any]:
-    """All four online detectors (coarse, ground, curb, car) on simulated hdl64 urban frames."""
+def bench_online(frames: int = 10, profiler_frames: int = 4) -> dict[str, Any]:
+    """All four online detectors (coarse, ground, curb, car) on simulated urban frames: hdl64
+    sweeps (the criterion's sensor) and profiler-urban blocks of 99 lines (the paper's)."""
     from data_tools.sim.simulator import SimConfig, Simulator
     from prc_slam.online import OnlineDetector
     from prc_slam.scan import Scan
 
-    sim = Simulator(SimConfig(scene="urban", sensor="hdl64", frames=frames + 1))
-    scans = [Scan(sim.frame(i).ranges, sim.sensor.model) for i in range(frames + 1)]
-    det = OnlineDetector()
-    det.process(scans[0])  # compile, and a ground height to start from
-    t0 = time.perf_counter()
-    for scan in scans[1:]:
-        det.process(scan)
-    sec = (time.perf_counter() - t0) / frames
-    points = float(np.mean([s.n_points for s in scans[1:]]))
-    return {"points_per_s": points / sec, "ms_per_hdl64_frame": sec * 1e3}
+    def run(sensor: str, n: int) -> tuple[float, float]:
+        sim = Simulator(SimConfig(scene="urban", sensor=sensor, frames=n + 1))
+        scans = [Scan(sim.frame(i).ranges, sim.sensor.model) for i in range(n + 1)]
+        det = OnlineDetector()
+        det.process(scans[0])  # compile, and a ground height to start from
+        t0 = time.perf_counter()
+        for scan in scans[1:]:
+            det.process(scan)
+        sec = (time.perf_counter() - t0) / n
+        return float(np.mean([s.n_points for s in scans[1:]])) / sec, sec
+
+    rate, sec = run("hdl64", frames)
+    profiler_rate, profiler_sec = run("profiler-urban", profiler_frames)
+    return {
+        "points_per_s": rate,
+        "ms_per_hdl64_frame": sec * 1e3,
+        "profiler_points_per_s": profiler_rate,
+        "ms_per_profiler_block": profiler_sec * 1e3,
+    }
 
 
 def bench_mapclass(frames: int = 50, repeat: int = 2) -> dict[str, Any]:

@@ -11,6 +11,7 @@ from data_tools.sim.simulator import SimConfig, Simulator
 from prc_slam import labels as L
 from prc_slam.online import CoarseParams, coarse_classify, scan_lines
 from prc_slam.online import kernels as K
+from prc_slam.online.coarse import shared_first
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
 
 P = CoarseParams()
@@ -40,6 +41,24 @@ def test_line_angles_constant_on_collinear_points():
     kinked = pts.copy()
     kinked[3:, 2] += [0.5, 1.2]
     assert np.ptp(stats(kinked)[2]) > 5
+
+
+def test_min_step_forward_and_centred_hand_computed():
+    # a road at z = 0, a 0.2 m step at x = 0.2 (points every 0.1 m), then the raised road
+    pts = np.array([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [0.2, 0, 0.1], [0.2, 0, 0.2], [0.3, 0, 0.2], [0.4, 0, 0.2]])
+    line = (pts, np.ones(len(pts), bool), np.arange(len(pts)), np.zeros(3))
+    _, sv, _ = K.line_statistics(*line, 0.18, False)
+    # forward: D_2 runs from X_2 to the first return >= 0.18 m away, X_4 = X_2 + (0, 0, 0.2): vertical
+    assert sv[2] == pytest.approx(0.0, abs=1e-9)
+    assert sv[1] == pytest.approx(np.degrees(np.arctan(0.5)))  # X_1 -> X_4 = (0.1, 0, 0.2): the road before
+    _, sv, _ = K.line_statistics(*line, 0.18, True)
+    # centred: D_k from >= 0.09 m before to >= 0.09 m after X_k
+    assert sv[1] == pytest.approx(90.0)  # X_0 -> X_2, flat: the road stays horizontal
+    assert sv[2] == pytest.approx(45.0)  # X_1 -> X_3 = (0.1, 0, 0.1)
+    assert sv[3] == pytest.approx(0.0, abs=1e-9)  # X_2 -> X_4: the face itself is vertical
+    _, paper, _ = K.line_statistics(*line, 0.0, True)
+    _, plain, _ = K.line_statistics(*line)
+    np.testing.assert_array_equal(paper, plain)  # min_step 0: the paper's successive differences
 
 
 def test_hmm_cusum_first_llr_is_zero_and_detects_fast_switching():
@@ -110,8 +129,13 @@ def test_profiler_lines_start_at_the_lowest_point():
     lines = scan_lines(scan)
     z = scan.slot_xyz()[..., 2].ravel()
     assert lines.shape == (4, 5)
-    for line in lines:
+    for line in lines:  # outwards from the lowest return...
         assert z[line[0]] == z.reshape(2, 8)[line[0] // 8].min()
+    for up, down in zip(lines[:2], lines[2:], strict=True):  # ...in both directions
+        assert up[0] == down[0] and (up[1] - up[0]) % 8 == 1 and (down[1] - down[0]) % 8 == 7
+    used = lines[lines >= 0]
+    assert sorted(set(used.tolist())) == list(range(16)) and len(used) == 16 + 2  # only the start is shared
+    assert shared_first(scan) == 2
 
 
 def test_simulated_frame(tmp_path):

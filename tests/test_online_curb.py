@@ -124,7 +124,7 @@ def test_profiler_defaults_and_the_car_height_floor():
 
     sim = Simulator(SimConfig(sensor="profiler-urban", frames=4, lines_per_frame=99))
     scans = [Scan(sim.frame(i).ranges, sim.sensor.model) for i in range(4)]
-    assert default_coarse_params(scans[0]).min_step == 0.1  # profilers: 0.1 m baseline
+    assert default_coarse_params(scans[0]).min_step == 0.1 and default_coarse_params(scans[0]).centred  # profilers
     spinning = Simulator(SimConfig(frames=1))
     assert default_coarse_params(Scan(spinning.frame(0).ranges, spinning.sensor.model)).min_step == 0.0
     det = OnlineDetector()
@@ -138,3 +138,51 @@ def test_profiler_defaults_and_the_car_height_floor():
     ours = detect_cars(scans[-1], coarse, z_ground).mask
     assert (paper & (z < z_ground + 0.3)).any()  # the paper's cars reach down to the road
     assert not (ours & (z < z_ground + 0.3)).any() and (ours == (paper & (z >= z_ground + 0.3))).all()
+
+
+def test_possible_curbs_after_every_ground_run_hand_computed():
+    from prc_slam.online.curb import possible_curbs
+
+    # one line, outwards: road (G), a curb face (V), the sidewalk (G again), a wall (V)
+    y = np.array([2.0, 2.5, 3.0, 3.0, 3.0, 3.5, 4.0, 4.5, 4.5, 4.5])
+    z = np.array([-1.7, -1.7, -1.7, -1.69, -1.6, -1.55, -1.55, -1.55, -1.545, 0.5])
+    xyz = np.stack([np.zeros_like(y), y, z], axis=1)
+    codes = np.array([68, 68, 68, 69, 69, 68, 68, 68, 69, 69], np.uint8)
+    ground = np.array([1, 1, 1, 0, 0, 1, 1, 1, 0, 0], bool)
+    args = (xyz, codes, ground, np.ones(10, bool), np.arange(10)[None, :], np.array([-1.7]), 2.0, 30, 0.01)
+    pcs = possible_curbs(*args, False)[0]
+    # TestUnder is false only within 1 cm of the farthest earlier range: the face's and the
+    # wall's lowest returns. Read online, "the last ground point" is the latest one: a PC
+    # after each run of ground
+    assert pcs[pcs >= 0].tolist() == [3, 8]
+    offline = possible_curbs(*args, True)[0]
+    assert offline[offline >= 0].tolist() == [8]  # only after the line's final ground return
+    low = possible_curbs(*args[:6], 0.1, 30, 0.01, False)[0]
+    assert low[low >= 0].tolist() == [3]  # the wall starts 0.155 m up: beyond t_high = 0.1
+
+
+def test_region_growing_joins_only_near_neighbours():
+    from prc_slam.prc.kernels import connected_components, connected_components_within
+
+    mask = np.array([[1, 1, 0, 1], [0, 1, 0, 1]], bool)
+    xyz = np.zeros((2, 4, 3))
+    xyz[0, :, 0] = [0.0, 0.1, 5.0, 9.0]
+    xyz[1, :, 0] = [0.0, 2.0, 0.0, 9.1]  # (1, 1) lies 1.9 m from (0, 1) above it
+    lab, n = connected_components_within(mask, xyz, 0.5, False)
+    assert n == 3 and lab[0, 0] == lab[0, 1] != lab[1, 1] and lab[0, 3] == lab[1, 3]
+    lab_inf, n_inf = connected_components_within(mask, xyz, np.inf, False)
+    plain, n_plain = connected_components(mask, False)
+    assert n_inf == n_plain == 2 and (lab_inf == plain).all()
+
+
+def test_curb_height_limits():
+    from prc_slam.online.curb import CurbParams
+
+    scan, face = street_with_step(0.12)
+    det = GroundDetector()
+    coarse = coarse_classify(scan)
+    ground = det.process(scan, coarse)
+    assert detect_curbs(scan, coarse, ground, det.height, CurbParams(min_height=0.05)).mask[face].mean() > 0.5
+    # a region lower than min_height is no curb; t_curb below the face's height rejects it too
+    assert not detect_curbs(scan, coarse, ground, det.height, CurbParams(min_height=0.15)).mask.any()
+    assert not detect_curbs(scan, coarse, ground, det.height, CurbParams(t_curb=0.05)).mask.any()

@@ -11,7 +11,7 @@ from data_tools.sim.dataset import write_sequence
 from data_tools.sim.simulator import SimConfig, Simulator
 from prc_slam import labels as L
 from prc_slam.online import coarse_classify
-from prc_slam.online.ground import GroundDetector, mean_shift_modes, single_mode
+from prc_slam.online.ground import GroundDetector, grow_single_mode, mean_shift_modes, single_mode
 from prc_slam.scan import Scan, SpinningSensor
 
 
@@ -27,6 +27,19 @@ def test_mean_shift_modes_hand_cases():
 def test_single_mode_agrees_with_full_mean_shift(values, bandwidth):
     x = np.array(values)
     assert single_mode(x, bandwidth) == (len(mean_shift_modes(x, bandwidth)[0]) == 1)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-30, 30), min_size=3, max_size=60), st.integers(1, 10), st.floats(0.5, 8))
+def test_incremental_growth_agrees_with_single_mode_on_every_prefix(values, first, bandwidth):
+    x = np.array(values)
+    first = min(first, len(x))
+    expected = len(x)
+    for e in range(first, len(x)):  # Sec. 5 (a), step 3: grow while one mode
+        if not single_mode(x[: e + 1], bandwidth):
+            expected = e
+            break
+    assert grow_single_mode(x, 0, first, len(x), bandwidth) == expected
 
 
 def flat_street_scan(cols: int = 200, height: float = 1.7, wall: float | None = 14.0) -> Scan:
@@ -55,6 +68,9 @@ def test_flat_ground_found_at_its_height_and_walls_are_not_ground():
     assert abs(det.height + 1.7) < 0.03
     assert ground[on_ground].mean() > 0.8
     assert not ground[on_wall].any()
+    # z_i per scan line (Sec. 5): one per line, every line of this street sees the road
+    assert det.line_heights.shape == (scan.shape[1],)
+    np.testing.assert_allclose(det.line_heights, -1.7, atol=0.03)
 
 
 def test_ground_state_carries_over_frames_and_needs_50_estimates():

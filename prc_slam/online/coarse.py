@@ -45,13 +45,16 @@ class CoarseParams:
     tp_fast: np.ndarray = field(default_factory=_uniform3)
     tp_h: float = 10.0
     min_step: float = 0.0  # beyond the paper: minimum baseline of D_k (m), see line_statistics
+    centred: bool = False  # with min_step: the baseline centred on X_k, see line_statistics
 
 
 def scan_lines(scan: Scan) -> np.ndarray:
     """The paper's scan lines as rows of flat slot indices (``-1`` pads), ``int64[L, n]``.
 
     Spinning sensor: one line per column, read from the lowest beam up. Profiler: each scan
-    line read outwards from its lowest return in both directions (two lines per row).
+    line read outwards from its lowest return in both directions, two lines per row (rows
+    ``0..R-1`` up, ``R..2R-1`` down) which share only that first return; per-slot results take
+    the down line's (see :func:`shared_first`).
     """
     rows, cols = scan.shape
     flat = np.arange(rows * cols).reshape(rows, cols)
@@ -61,24 +64,42 @@ def scan_lines(scan: Scan) -> np.ndarray:
     if isinstance(scan.sensor, ProfilerSensor):
         z = np.where(scan.valid, scan.slot_xyz()[..., 2], np.inf)
         low = np.argmin(z, axis=1)
-        half = cols // 2 + 1
+        half = cols // 2 + 1  # up: the lowest return and the next half - 1; down: it and the rest
         step = np.arange(half)
-        up = (low[:, None] + step[None, :]) % cols
-        down = (low[:, None] - step[None, :]) % cols
-        return np.concatenate([flat[np.arange(rows)[:, None], up], flat[np.arange(rows)[:, None], down]])
+        up = flat[np.arange(rows)[:, None], (low[:, None] + step[None, :]) % cols]
+        down = flat[np.arange(rows)[:, None], (low[:, None] - step[None, :]) % cols]
+        down[:, cols - half + 1 :] = -1
+        return np.concatenate([up, down])
     raise TypeError(f"no scan-line definition for {type(scan.sensor).__name__}")
 
 
+def line_values(value: float | np.ndarray, n_lines: int) -> np.ndarray:
+    """A per-line quantity (e.g. the ground height) as ``float64[n_lines]``, from one value
+    for every line or one per line."""
+    out = np.broadcast_to(np.asarray(value, dtype=np.float64), (n_lines,))
+    if not np.isfinite(out).all():
+        raise ValueError("per-line values must be finite")
+    return np.ascontiguousarray(out)
+
+
+def shared_first(scan: Scan) -> int:
+    """How many leading lines of :func:`scan_lines` share their first slot with a later line
+    (a profiler's up lines); kernels leave that slot's per-slot results to the later line, so
+    that parallel loops write every slot once."""
+    return scan.shape[0] if isinstance(scan.sensor, ProfilerSensor) else 0
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th, min_step):
+def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th, min_step, centred, shared):
     n_slots = xyz.shape[0]
     codes = np.zeros(n_slots, np.uint8)
     t_prime = np.zeros(n_slots, np.bool_)
     sv_out = np.zeros(n_slots, np.float32)
     phi_out = np.zeros(n_slots, np.float32)
-    for li in prange(lines.shape[0]):  # scan lines are independent; each writes only its slots
+    for i in prange(lines.shape[0]):  # scan lines are independent; each writes only its slots
+        li = K.interleaved(i, lines.shape[0])
         origin = np.zeros(3)
-        pts, sv, phi = K.line_statistics(xyz, valid, lines[li], origin, min_step)
+        pts, sv, phi = K.line_statistics(xyz, valid, lines[li], origin, min_step, centred)
         n = pts.shape[0]
         if n == 0:
             continue
@@ -101,6 +122,10 @@ def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0
         j = 0
         for k in range(n):
             s = pts[k]
+            if k == 0 and li < shared and s == lines[li, 0]:  # the down line writes it
+                if not veg[k]:
+                    j += 1
+                continue
             sv_out[s] = sv[k]
             phi_out[s] = phi[k]
             t_prime[s] = tp[k]
@@ -133,7 +158,8 @@ def coarse_classify(scan: Scan, params: CoarseParams | None = None) -> CoarseRes
         xyz, valid, lines,
         np.array(p.veg_means, float), p.veg_sigma, p.veg_slow, p.veg_fast, p.veg_h,
         p.hv_sigma, p.hv_h,
-        np.array(p.tp_means, float), p.tp_sigma, p.tp_regular, p.tp_fast, p.tp_h, p.min_step,
+        np.array(p.tp_means, float), p.tp_sigma, p.tp_regular, p.tp_fast, p.tp_h,
+        p.min_step, p.centred, shared_first(scan),
     )  # fmt: skip
     shape = scan.shape
     assert L.VEGETATION == 5 and L.HORIZONTAL == 68 and L.VERTICAL == 69  # codes used by the kernel

@@ -39,11 +39,19 @@ def default_coarse_params(scan: Scan) -> CoarseParams:
     noise. Measured on 12 simulated profiler-urban frames: ground recall 0.05 -> 0.61, vehicle
     0.05 / 0.10 -> 0.92 / 0.93 (with ``CarParams.min_above_ground``). On hdl64 columns it would
     erase the curbs (curb recall 0.32 -> 0.04), so spinning sensors keep the paper's steps."""
-    return CoarseParams(min_step=0.1) if isinstance(scan.sensor, ProfilerSensor) else CoarseParams()
+    return CoarseParams(min_step=0.1, centred=True) if isinstance(scan.sensor, ProfilerSensor) else CoarseParams()
 
 
 class OnlineDetector:
-    """Streaming detectors; the ground height estimate carries over from scan to scan."""
+    """Streaming detectors; the ground height estimate carries over from scan to scan.
+
+    The curb and car algorithms measure heights from the dominant ground height ``z_d``.
+    ``per_line_height=True`` takes each scan line's own ``z_i`` instead (Sec. 5: "the height
+    z_i of the ground at each scanline"; lines without ground take the last updated ``z_d``).
+    ``z_i``, the mean of a run's 5 lowest returns, sits in the noise and gutters below the road:
+    on 12 simulated profiler-urban frames vehicle precision falls 0.946 -> 0.920 with it
+    (another street: 0.867 -> 0.839), recall unchanged, curbs unchanged.
+    """
 
     def __init__(
         self,
@@ -51,19 +59,22 @@ class OnlineDetector:
         ground: GroundParams | None = None,
         curb: CurbParams | None = None,
         car: CarParams | None = None,
+        per_line_height: bool = False,
     ) -> None:
         self.coarse_params = coarse
         self.curb_params = curb or CurbParams()
         self.car_params = car or CarParams()
         self.ground = GroundDetector(ground)
+        self.per_line_height = per_line_height
 
     def process(self, scan: Scan) -> OnlineResult:
         """Label every slot of ``scan``."""
         t0 = time.perf_counter()
         coarse = coarse_classify(scan, self.coarse_params or default_coarse_params(scan))
         ground = self.ground.process(scan, coarse)
-        curbs = detect_curbs(scan, coarse, ground, self.ground.height, self.curb_params)
-        cars = detect_cars(scan, coarse, self.ground.height, curbs.mask, self.car_params)
+        heights = self.ground.line_heights if self.per_line_height else self.ground.height
+        curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
+        cars = detect_cars(scan, coarse, heights, curbs.mask, self.car_params)
         labels = coarse.codes.copy()
         labels[ground] = L.GROUND
         labels[curbs.mask] = L.CURB

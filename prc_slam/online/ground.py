@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from prc_slam import labels as L
 from prc_slam.online import kernels as K
@@ -89,7 +89,7 @@ def single_mode(x, bandwidth):
 
 
 @njit(cache=True, nogil=True)
-def _potential_ground(codes, phi, zs, first, run_len, phi_bw):
+def _potential_ground(codes, phi, first, run_len, phi_bw):
     """Part (a) on the returns ``first..`` of one line: (start, end) of the potential-ground run
     (end exclusive) or (-1, -1)."""
     n = codes.shape[0]
@@ -105,12 +105,91 @@ def _potential_ground(codes, phi, zs, first, run_len, phi_bw):
             count = 0
     if start < 0:
         return -1, -1
-    end = start + run_len  # points start..end-1 (n = 9 in the paper's 1-based terms)
-    while end < n and codes[end] == 68:
-        if not single_mode(phi[start : end + 1], phi_bw):
-            break
-        end += 1
-    return start, end
+    end_max = start + run_len  # points start..end-1 (n = 9 in the paper's 1-based terms)
+    while end_max < n and codes[end_max] == 68:
+        end_max += 1
+    # rank growing blocks (x4) so that a run failing early costs little
+    end, block = start + run_len, 4 * run_len
+    while True:
+        stop = min(end_max, start + block)
+        end = grow_single_mode(phi, start, end, stop, phi_bw)
+        if end < stop or stop == end_max:
+            return start, end
+        block *= 4
+
+
+@njit(cache=True, nogil=True)
+def _fenwick_add(tree, i, v):
+    i += 1
+    while i < tree.shape[0]:
+        tree[i] += v
+        i += i & -i
+
+
+@njit(cache=True, nogil=True)
+def _fenwick_sum(tree, i):
+    """Sum of the first ``i`` entries."""
+    s = 0.0
+    while i > 0:
+        s += tree[i]
+        i -= i & -i
+    return s
+
+
+@njit(cache=True, nogil=True)
+def _track_mode_ranked(srt, cnt, tot, start, bandwidth):
+    """:func:`_track_mode` over the samples entered in the Fenwick trees ``cnt`` / ``tot``
+    (indexed by rank in ``srt``): each window sum is two binary searches and four prefix sums."""
+    m = start
+    for _ in range(100):
+        i0 = np.searchsorted(srt, m - bandwidth, side="left")
+        i1 = np.searchsorted(srt, m + bandwidth, side="right")
+        c = _fenwick_sum(cnt, i1) - _fenwick_sum(cnt, i0)
+        if c <= 0.0:
+            return m
+        new = (_fenwick_sum(tot, i1) - _fenwick_sum(tot, i0)) / c
+        if abs(new - m) < 1e-3 * bandwidth:
+            return new
+        m = new
+    return m
+
+
+@njit(cache=True, nogil=True)
+def grow_single_mode(x, start, end, end_max, bandwidth):
+    """Grow ``x[start:end]`` one sample at a time up to ``end_max`` while mean shift finds a
+    single mode (:func:`single_mode` of ``x[start:e + 1]`` for ``e = end, end + 1, ...``);
+    returns the first ``e`` that fails, or ``end_max``.
+
+    Same answer as calling :func:`single_mode` on every prefix, in O(log n) per step instead
+    of O(n): the candidates are ranked once, and the samples entered so far live in two
+    Fenwick trees (count and sum) over those ranks. Samples spanning at most one bandwidth
+    need no search: every window then holds all of them, so both ends climb to their mean.
+    """
+    if end >= end_max:
+        return end_max
+    vals = x[start:end_max]
+    order = np.argsort(vals)
+    srt = vals[order]
+    rank = np.empty(vals.shape[0], np.int64)
+    for i in range(vals.shape[0]):
+        rank[order[i]] = i
+    cnt = np.zeros(vals.shape[0] + 1)
+    tot = np.zeros(vals.shape[0] + 1)
+    lo = np.inf
+    hi = -np.inf
+    for e in range(end_max - start):
+        v = vals[e]
+        _fenwick_add(cnt, rank[e], 1.0)
+        _fenwick_add(tot, rank[e], v)
+        lo = min(lo, v)
+        hi = max(hi, v)
+        if e + start < end or hi - lo <= bandwidth:  # within one bandwidth: a single mode
+            continue
+        a = _track_mode_ranked(srt, cnt, tot, lo, bandwidth)
+        b = _track_mode_ranked(srt, cnt, tot, hi, bandwidth)
+        if abs(b - a) >= bandwidth / 2:
+            return e + start
+    return end_max
 
 
 @njit(cache=True, nogil=True)
@@ -120,6 +199,20 @@ def _lowest_mean(z, k):
     return s[:m].mean()
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def first_runs(slot_codes, slot_phi, valid, lines, run_len, phi_bw):
+    """Part (a) from the start of every line, ``int64[L, 2]`` (start, end) or (-1, -1): it
+    does not depend on the state carried across lines, so all lines run in parallel."""
+    out = np.full((lines.shape[0], 2), -1, np.int64)
+    for i in prange(lines.shape[0]):
+        li = K.interleaved(i, lines.shape[0])
+        pts = K.line_returns(lines[li], valid)
+        a, b = _potential_ground(slot_codes[pts], slot_phi[pts].astype(np.float64), 0, run_len, phi_bw)
+        out[li, 0] = a
+        out[li, 1] = b
+    return out
+
+
 @njit(cache=True, nogil=True)
 def ground_lines(
     xyz,
@@ -127,6 +220,7 @@ def ground_lines(
     slot_phi,
     valid,
     lines,
+    first_run,
     z_hist,
     n_hist,
     zd,
@@ -139,7 +233,8 @@ def ground_lines(
     n_init,
 ):
     """Parts (a) and (b) over all lines of a frame, continuing the state ``(z_hist, n_hist,
-    zd, have_zd)``. Returns the ground mask per slot, the per-line ground height and the state."""
+    zd, have_zd)``; ``first_run`` is :func:`first_runs` of ``lines``. Returns the ground mask
+    per slot, the per-line ground height and the state."""
     n_slots = xyz.shape[0]
     ground = np.zeros(n_slots, np.bool_)
     line_height = np.full(lines.shape[0], np.nan)
@@ -152,7 +247,10 @@ def ground_lines(
         zs = xyz[pts, 2]
         first = 0
         while True:
-            a, b = _potential_ground(codes, phi, zs, first, run_len, phi_bw)
+            if first == 0:
+                a, b = first_run[li, 0], first_run[li, 1]
+            else:
+                a, b = _potential_ground(codes, phi, first, run_len, phi_bw)
             if a < 0:
                 break
             zi = _lowest_mean(zs[a:b], 5)
@@ -178,6 +276,8 @@ def ground_lines(
                 zd = _track_mode(z_hist, min(n_hist, z_hist.shape[0]), zd, z_bw)
                 break
             first = b  # not close to z_d: part (a) again after the run
+        if have_zd and np.isnan(line_height[li]):
+            line_height[li] = zd  # no ground on this line: the last updated estimate
     return ground, line_height, pending, z_hist, n_hist, zd, have_zd
 
 
@@ -203,29 +303,34 @@ class GroundDetector:
         self.n_hist = 0
         self.zd = 0.0
         self.have_zd = False
+        self.line_heights: np.ndarray | None = None
 
     @property
     def height(self) -> float | None:
         """The dominant ground height ``z_d`` (sensor frame), once known."""
         return self.zd if self.have_zd else None
 
-    def _run(self, args: tuple, lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _run(self, args: tuple, lines: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:func:`ground_lines` on ``lines`` from the current state; updates the state."""
         p = self.params
-        ground, _, pending, self.z_hist, self.n_hist, self.zd, self.have_zd = ground_lines(
-            *args, lines, self.z_hist, self.n_hist, self.zd, self.have_zd,
+        first = first_runs(*args[1:], lines, p.run_len, p.phi_bandwidth)
+        ground, heights, pending, self.z_hist, self.n_hist, self.zd, self.have_zd = ground_lines(
+            *args, lines, first, self.z_hist, self.n_hist, self.zd, self.have_zd,
             p.run_len, p.phi_bandwidth, p.z_bandwidth, p.rel_tolerance, p.grow_tolerance, p.n_init,
         )  # fmt: skip
-        return ground, pending
+        return ground, heights, pending
 
     def process(self, scan: Scan, coarse: CoarseResult) -> np.ndarray:
-        """Ground mask (rows, cols) of one scan, given its coarse classification."""
+        """Ground mask (rows, cols) of one scan, given its coarse classification. Afterwards
+        :attr:`line_heights` holds the ground height of each of the scan's lines."""
         xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
         lines = scan_lines(scan)
         args = (xyz, coarse.codes.ravel(), coarse.phi_hat.ravel(), scan.valid.ravel())
         had = self.have_zd
-        ground, pending = self._run(args, lines)
+        ground, heights, pending = self._run(args, lines)
         if self.have_zd and not had and pending.any():  # start again from the first scan line
-            ground |= self._run(args, lines[pending])[0]
+            again, heights[pending], _ = self._run(args, lines[pending])
+            ground |= again
+        self.line_heights = np.where(np.isnan(heights), self.zd, heights) if self.have_zd else None
         assert L.HORIZONTAL == 68  # code tested by the kernel
         return ground.reshape(scan.shape)

@@ -22,6 +22,23 @@ def _angle_deg(a, b):
 
 
 @njit(cache=True, nogil=True)
+def interleaved(i, n):
+    """The ``i``-th of ``n`` lines in the order 0, h, 1, h + 1, ... (``h = ceil(n / 2)``): a
+    parallel loop over ``i`` then shares the two halves of a profiler's lines (one side of the
+    street each, :func:`prc_slam.online.coarse.scan_lines`) evenly between threads."""
+    half = (n + 1) // 2
+    return i // 2 if i % 2 == 0 else half + i // 2
+
+
+@njit(cache=True, nogil=True)
+def _dist2(xyz, i, j):
+    dx = xyz[i, 0] - xyz[j, 0]
+    dy = xyz[i, 1] - xyz[j, 1]
+    dz = xyz[i, 2] - xyz[j, 2]
+    return dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True, nogil=True)
 def line_returns(line, valid):
     """Slot indices of the returns of one scan line, in line order (``line`` is ``-1``-padded;
     slots without a return, the paper's missing points M, are skipped)."""
@@ -38,7 +55,7 @@ def line_returns(line, valid):
 
 
 @njit(cache=True, nogil=True)
-def line_statistics(xyz, valid, line, origin, min_step=0.0):
+def line_statistics(xyz, valid, line, origin, min_step=0.0, centred=False):
     """Signed angles ``sV`` and line angles ``phi_hat`` of one scan line (Sec. 3).
 
     ``D_k = X_{k+1} - X_k`` over the returns of the line in order; ``V_k`` is the angle of
@@ -52,8 +69,11 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0):
     ``min_step`` > 0 (beyond the paper) takes ``D_k`` to the first later return at least
     ``min_step`` away instead of the next one: on dense profiles whose point spacing is
     comparable to the range noise the paper's successive differences are noise. With
-    ``min_step = 0`` (or sparse lines) this is the paper's definition. Values belong to point ``k`` (the last return
-    repeats its predecessor's).
+    ``centred``, ``D_k`` runs instead from the last earlier return at least ``min_step / 2``
+    away to the first later one at least ``min_step / 2`` away, so that a step's steep angle
+    lands on the step's own returns (a curb face) rather than on the returns before it.
+    With ``min_step = 0`` this is the paper's definition. Values belong to point ``k`` (the
+    last return repeats its predecessor's).
 
     Returns
     -------
@@ -73,17 +93,21 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0):
     rb = np.zeros(3)
     cum = 0.0
     nxt = 1
+    lo = 0
     for k in range(n - 1):
+        a = k
+        step = min_step
+        if centred and min_step > 0.0:  # D_k from >= min_step/2 before X_k to >= min_step/2 after
+            step = 0.5 * min_step
+            while lo + 1 < k and _dist2(xyz, pts[lo + 1], pts[k]) >= step * step:
+                lo += 1
+            a = lo
         nxt = max(nxt, k + 1)
-        while nxt < n - 1:
-            dx = xyz[pts[nxt], 0] - xyz[pts[k], 0]
-            dy = xyz[pts[nxt], 1] - xyz[pts[k], 1]
-            dz = xyz[pts[nxt], 2] - xyz[pts[k], 2]
-            if dx * dx + dy * dy + dz * dz >= min_step * min_step:
-                break
+        while nxt < n - 1 and _dist2(xyz, pts[nxt], pts[k]) < step * step:
             nxt += 1
+        b = nxt
         for c in range(3):
-            d[c] = xyz[pts[nxt], c] - xyz[pts[k], c]
+            d[c] = xyz[pts[b], c] - xyz[pts[a], c]
             ra[c] = xyz[pts[k], c] - origin[c]
             rb[c] = xyz[pts[k + 1], c] - origin[c]
         v = _angle_deg(d, z)

@@ -238,16 +238,33 @@ def connected_components(mask, wrap):
     labels : int32 array, shape (rows, cols)
     n : int
     """
+    return connected_components_within(mask, np.zeros((1, 1, 3)), np.inf, wrap)
+
+
+@njit(cache=True, nogil=True)
+def _near(xyz, r0, c0, r1, c1, max_dist):
+    if max_dist == np.inf:
+        return True
+    d = 0.0
+    for k in range(3):
+        d += (xyz[r0, c0, k] - xyz[r1, c1, k]) ** 2
+    return d <= max_dist * max_dist
+
+
+@njit(cache=True, nogil=True)
+def connected_components_within(mask, xyz, max_dist, wrap):
+    """``connected_components`` where 4-neighbours join only when their points (``xyz``, shape
+    (rows, cols, 3)) lie at most ``max_dist`` apart; ``max_dist = inf`` ignores ``xyz``."""
     R, C = mask.shape
     lab = np.zeros((R, C), np.int32)
-    parent = np.zeros(R * C // 2 + 2 + R, np.int32)
+    parent = np.zeros(R * C + 2, np.int32) if max_dist != np.inf else np.zeros(R * C // 2 + 2 + R, np.int32)
     n = 0
     for r in range(R):
         for c in range(C):
             if not mask[r, c]:
                 continue
-            up = lab[r - 1, c] if r > 0 else 0
-            left = lab[r, c - 1] if c > 0 else 0
+            up = lab[r - 1, c] if r > 0 and _near(xyz, r, c, r - 1, c, max_dist) else 0
+            left = lab[r, c - 1] if c > 0 and _near(xyz, r, c, r, c - 1, max_dist) else 0
             if up == 0 and left == 0:
                 n += 1
                 parent[n] = n
@@ -260,7 +277,7 @@ def connected_components(mask, wrap):
                 lab[r, c] = up if up != 0 else left
     if wrap and C > 1:
         for r in range(R):
-            if lab[r, 0] != 0 and lab[r, C - 1] != 0:
+            if lab[r, 0] != 0 and lab[r, C - 1] != 0 and _near(xyz, r, 0, r, C - 1, max_dist):
                 _union(parent, lab[r, 0], lab[r, C - 1])
     final = np.zeros(n + 1, np.int32)
     k = 0
