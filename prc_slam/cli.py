@@ -457,9 +457,10 @@ def detect(
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
     log_every: int = EVERY_OPT,
+    paper: bool = typer.Option(False, "--paper", help="the paper's readings only (our deviations off)"),
 ) -> None:
-    """Online per-scan-line detectors (paper 001): horizontal / vertical / vegetation, ground and
-    curbs, with curb polylines; scored against ground truth when the input has it."""
+    """Online per-scan-line detectors (paper 001): horizontal / vertical / vegetation, ground,
+    curbs with polylines and cars with boxes; scored against ground truth when the input has it."""
     from data_tools import DataError, open_dataset
     from data_tools.writers import write_label_file
     from prc_slam import labels as L
@@ -472,7 +473,7 @@ def detect(
         raise _fail(str(exc)) from exc
     n = len(dataset) if max_frames is None else min(max_frames, len(dataset))
     viewer = Viewer(rrd, connect, serve_web, log_every)
-    detector = OnlineDetector()
+    detector = OnlineDetector.paper() if paper else OnlineDetector()
     confusion = ConfusionAccumulator()
     have_gt, points, seconds, curbs = False, 0, 0.0, 0
     objects = {L.VEHICLE: np.zeros(2, int), L.CURB: np.zeros(2, int)}  # found, present, summed over frames

@@ -103,6 +103,11 @@ def test_detect_command_writes_labels_json_and_recording(tmp_path):
         "/world/sensor/online",
         "/world/sensor/raw",
     } <= paths
+    paper = CliRunner().invoke(app, ["detect", str(root), "--paper", "--json", str(tmp_path / "p.json")])
+    assert paper.exit_code == 0, paper.output
+    p = json.loads((tmp_path / "p.json").read_text())
+    assert p["objects"]["curb"]["present"] == m["objects"]["curb"]["present"]
+    assert p["per_class"] != m["per_class"]  # the paper's readings give other labels
 
 
 def test_vehicle_objects_found_hand_computed():

@@ -67,6 +67,18 @@ class OnlineDetector:
         self.ground = GroundDetector(ground)
         self.per_line_height = per_line_height
 
+    @classmethod
+    def paper(cls) -> OnlineDetector:
+        """The paper's readings throughout: successive differences on every sensor, one PC
+        per line after its final ground return, range-image regions without a distance gate or
+        height floor, car returns down to the ground, and each line's own ground height."""
+        return cls(
+            CoarseParams(),
+            curb=CurbParams(last_only=True, max_gap=float("inf"), min_height=0.0),
+            car=CarParams(min_above_ground=0.0),
+            per_line_height=True,
+        )
+
     def process(self, scan: Scan) -> OnlineResult:
         """Label every slot of ``scan``."""
         t0 = time.perf_counter()
