@@ -220,3 +220,62 @@ def test_per_line_ground_heights():
         line_values(np.array([1.0, np.nan]), 2)
     with pytest.raises(ValueError):
         line_values(np.zeros(3), 2)  # one value per line, or one for all
+
+
+def test_behind_bridged_curb_hand_computed():
+    from prc_slam.online.car import behind_bridged_curb
+
+    scan = Scan(np.zeros((5, 4), np.float32), ProfilerSensor.create(5, 4, line_spacing=0.25))
+    # 5 up lines (rows 0-4, scanners at x = 0, 0.25, ..., 1.0), then 5 down lines; 2 slots each
+    lines = np.arange(20).reshape(10, 2)
+    xy = np.zeros((20, 2))
+    xy[:, 0] = np.repeat((np.arange(10) % 5) * 0.25, 2)
+    xy[0::2, 1], xy[1::2, 1] = 4.0, 6.0  # each line: one return before y = 5, one after
+    curb = np.full(10, -1)
+    curb[0], curb[4] = 1, 9  # curb returns on rows 0 and 4 of the up lines: (0, 6) and (1, 6)
+    behind = behind_bridged_curb(scan, lines, curb, xy, bridge=2.0)
+    # the curb runs along y = 6 between them: nothing is beyond it on rows 1-3 ...
+    assert not behind.any()
+    xy[1::2, 1] = 7.0
+    xy[1, 1] = xy[9, 1] = 5.0  # ... now it runs along y = 5, and rows 1-3 see y = 7 behind it
+    behind = behind_bridged_curb(scan, lines, curb, xy, bridge=2.0)
+    assert np.flatnonzero(behind).tolist() == [3, 5, 7]  # not the lines' own curbs, not the down lines
+    assert not behind_bridged_curb(scan, lines, curb, xy, bridge=0.9).any()  # curb returns 1 m apart
+    curb[4] = -1
+    assert not behind_bridged_curb(scan, lines, curb, xy, bridge=2.0).any()  # no curb after the gap
+    curb[4], curb[6] = -1, 13
+    assert not behind_bridged_curb(scan, lines, curb, xy, bridge=2.0)[[3, 5, 7, 9]].any()  # other group
+
+
+def test_lawn_behind_a_curb_hidden_by_a_parked_car():
+    """Behind the curb at y = 5 m: a raised lawn (0.6 m) and a hedge. On the lines through the
+    car the curb is hidden, and the lawn and hedge seen over the car joined the car's interval;
+    the curb of the lines either side of the car sends them back (``CarParams.curb_bridge``)."""
+    from prc_slam.online.car import CarParams
+
+    def kerbside() -> list[tuple]:
+        top, lawn = 0.12 - HEIGHT, 0.6 - HEIGHT
+        return [
+            (-60.0, -HEIGHT, 5.0, -HEIGHT, False),
+            (5.0, -HEIGHT, 5.0, top, False),
+            (5.0, top, 6.5, top, False),
+            (6.5, top, 6.5, lawn, False),
+            (6.5, lawn, 12.0, lawn, False),
+            (12.0, lawn, 12.0, 8.0, False),
+        ]
+
+    theta = 2 * np.pi * np.arange(COLS) / COLS
+    rows = 120
+    r = np.tile(cast(kerbside(), theta), (rows, 1))
+    r[list(CAR_ROWS)] = cast(kerbside() + car(2.95) + bush(np.random.default_rng(2), 9.0), theta)
+    r = np.where(r > 0, r + np.random.default_rng(0).normal(0, 0.005, r.shape), 0.0)
+    scan = Scan(r.astype(np.float32), ProfilerSensor.create(rows, COLS))
+    xyz = scan.slot_xyz()
+    beyond = scan.valid & (xyz[..., 1] > 5.05)
+    body = on_object(scan)
+    paper = OnlineDetector(car=CarParams(curb_bridge=0)).process(scan)
+    res = OnlineDetector().process(scan)
+    assert (paper.labels[beyond] == L.VEHICLE).sum() > 200  # the failure the bridge is for
+    assert not (res.labels[beyond] == L.VEHICLE).any()
+    assert (res.labels[body] == paper.labels[body]).all()  # the car in front of the curb keeps its labels
+    assert (res.labels[body] == L.VEHICLE).mean() > 0.8 and len(res.car_boxes) == 1

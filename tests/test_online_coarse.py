@@ -138,6 +138,27 @@ def test_profiler_lines_start_at_the_lowest_point():
     assert shared_first(scan) == 2
 
 
+def test_profiler_lines_start_on_the_ground_near_the_scanner():
+    """Ground 2 m below the scanner up to y = 12 m, then 2 m lower: the lowest return of the
+    line is far across the drop, but the line starts on the street (``start_radius`` 10 m)."""
+    cols = 720
+    theta = 2 * np.pi * np.arange(cols) / cols
+    down = np.sin(theta) < -0.02
+    t = np.where(down, -2.0 / np.where(down, np.sin(theta), -1.0), 0.0)
+    far = down & (t * np.cos(theta) > 12.0)
+    t[far] = -4.0 / np.sin(theta[far])
+    t[t > 60] = 0.0
+    scan = Scan(np.tile(t, (3, 1)).astype(np.float32), ProfilerSensor.create(3, cols))
+    xyz = scan.slot_xyz().reshape(-1, 3)
+    start = scan_lines(scan)[:, 0]
+    assert np.allclose(xyz[start, 2], -2.0, atol=1e-4) and (np.hypot(xyz[start, 0], xyz[start, 1]) <= 10).all()
+    assert np.allclose(xyz[scan_lines(scan, start_radius=np.inf)[:, 0], 2], -4.0, atol=1e-4)  # the lowest of all
+    blind = np.where(np.abs(t * np.cos(theta)) <= 10.0, 0.0, t)  # no return near the scanner
+    blind_scan = Scan(np.tile(blind, (3, 1)).astype(np.float32), ProfilerSensor.create(3, cols))
+    xyz = blind_scan.slot_xyz().reshape(-1, 3)
+    assert np.allclose(xyz[scan_lines(blind_scan)[:, 0], 2], -4.0, atol=1e-4)  # then the lowest of all
+
+
 def test_simulated_frame(tmp_path):
     seq = open_dataset(write_sequence(Simulator(SimConfig(frames=1, seed=1)), tmp_path / "sim"))
     scan = seq[0]

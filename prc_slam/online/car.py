@@ -22,6 +22,10 @@ Ours, where the paper gives no number: "long vertical run" (``long_vertical`` 1.
 "almost perfectly horizontal" (``|sV - 90| < 10`` deg), the Fourier band (``N/4 < k <= N/2``;
 the set S is garbled in our copy of the text) and the minimum interval length (4 returns).
 Car instances join car returns through touching 0.5 m voxels (ours), with oriented boxes.
+Two switchable additions of ours (``CarParams``): no car returns within ``min_above_ground``
+of the ground height, and the curb correction also where a parked car hides the curb from its
+own lines (``curb_bridge``; profiler-urban vehicle precision 0.87-0.88 -> 0.97-0.98 on two
+simulated streets, recall -0.01).
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ import numpy as np
 from numba import njit, prange
 
 from prc_slam.online import kernels as K
-from prc_slam.online.coarse import CoarseResult, line_values, scan_lines
+from prc_slam.online.coarse import CoarseResult, line_values
 from prc_slam.scan import ProfilerSensor, Scan
 from prc_slam.voxels import VoxelGrid
 
@@ -259,6 +263,10 @@ class CarParams:
     # beyond the paper (0 = paper): returns lower than this above the ground height are no car
     # points; on profiler-urban the paper's cars took 21 % road and sidewalk (precision 0.72 -> 0.92)
     min_above_ground: float = 0.3
+    # beyond the paper (0 = paper): the curb correction of Sec. 8 also on lines where a parked
+    # car hides the curb, behind the segment joining the curb returns of the nearest lines on
+    # either side, when these lie at most this far apart (m)
+    curb_bridge: float = 8.0
 
 
 @dataclass
@@ -284,7 +292,7 @@ def detect_cars(
     if z_ground is None:
         return CarResult(empty, np.zeros(scan.shape, np.int32))
     xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
-    lines = scan_lines(scan)
+    lines = coarse.lines
     z_line = line_values(z_ground, len(lines))
     curb_slot = np.full(len(lines), -1, np.int64)
     if curb_mask is not None and curb_mask.any():
@@ -316,8 +324,64 @@ def detect_cars(
         floor = np.full(xyz.shape[0], np.inf)
         floor[lines[lines >= 0]] = np.broadcast_to(z_line[:, None], lines.shape)[lines >= 0]
         car &= (xyz[:, 2] >= floor + p.min_above_ground).reshape(scan.shape)
-    instances, boxes = car_instances(car, instance_coordinates(scan))
+    coords = instance_coordinates(scan)
+    if p.curb_bridge > 0:
+        car &= ~behind_bridged_curb(scan, lines, curb_slot, coords[:, :2], p.curb_bridge).reshape(scan.shape)
+    instances, boxes = car_instances(car, coords)
     return CarResult(car, instances, boxes)
+
+
+def line_groups(scan: Scan, n_lines: int) -> tuple[np.ndarray, np.ndarray]:
+    """Neighbouring scan lines: the group of each line (lines of one group are ordered so that
+    neighbours are adjacent: a spinning sensor's columns; a profiler's up lines and its down
+    lines, each by row) and each line's scanner position in :func:`instance_coordinates`."""
+    origin = np.zeros((n_lines, 2))
+    if isinstance(scan.sensor, ProfilerSensor):
+        rows = scan.shape[0]
+        origin[:, 0] = (np.arange(n_lines) % rows) * scan.sensor.line_spacing
+        return np.arange(n_lines) // rows, origin
+    return np.zeros(n_lines, np.int64), origin
+
+
+def behind_bridged_curb(
+    scan: Scan, lines: np.ndarray, curb_slot: np.ndarray, xy: np.ndarray, bridge: float
+) -> np.ndarray:
+    """Slots (flat bool) behind a curb that their own line does not see (ours, extending Sec. 8).
+
+    A parked car hides the curb behind it from the lines that cross the car, so the paper's
+    correction (which needs the curb on the line) cannot revert the raised lawn or hedge seen
+    over the car. For a line without a verified curb return between two lines of its group that
+    have one, at most ``bridge`` apart, the curb runs along the segment A-B joining those two
+    returns; a return on the far side of the line A-B from the line's scanner position is
+    behind it. ``xy`` holds the slots' horizontal coordinates (:func:`instance_coordinates`).
+    """
+    n_lines = len(lines)
+    group, origin = line_groups(scan, n_lines)
+    idx = np.arange(n_lines)
+    has = curb_slot >= 0
+    # nearest line with a curb before / after, within the same group (lines of a group are contiguous)
+    prev = np.maximum.accumulate(np.where(has, idx, -1))
+    nxt = np.minimum.accumulate(np.where(has, idx, n_lines)[::-1])[::-1]
+    ok = ~has & (prev >= 0) & (nxt < n_lines)
+    ok[ok] &= (group[prev[ok]] == group[idx[ok]]) & (group[nxt[ok]] == group[idx[ok]])
+    a = np.full((n_lines, 2), np.nan)
+    b = np.full((n_lines, 2), np.nan)
+    a[ok] = xy[curb_slot[prev[ok]]]
+    b[ok] = xy[curb_slot[nxt[ok]]]
+    ok[ok] = np.linalg.norm(b[ok] - a[ok], axis=1) <= bridge
+    behind = np.zeros(len(xy), bool)
+    if not ok.any():
+        return behind
+    slots = lines[ok]
+    line_of = np.broadcast_to(idx[ok][:, None], slots.shape)[slots >= 0]
+    slots = slots[slots >= 0]
+    ab = b[line_of] - a[line_of]
+
+    def side(q: np.ndarray) -> np.ndarray:
+        return ab[:, 0] * (q[:, 1] - a[line_of, 1]) - ab[:, 1] * (q[:, 0] - a[line_of, 0])
+
+    behind[slots] = side(xy[slots]) * side(origin[line_of]) < 0
+    return behind
 
 
 def instance_coordinates(scan: Scan) -> np.ndarray:

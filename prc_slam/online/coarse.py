@@ -22,6 +22,8 @@ from prc_slam import labels as L
 from prc_slam.online import kernels as K
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
 
+PROFILER_START_RADIUS = 10.0  # m, see scan_lines
+
 
 def _uniform3() -> np.ndarray:
     return np.full((3, 3), 1.0 / 3.0)
@@ -48,13 +50,18 @@ class CoarseParams:
     centred: bool = False  # with min_step: the baseline centred on X_k, see line_statistics
 
 
-def scan_lines(scan: Scan) -> np.ndarray:
+def scan_lines(scan: Scan, start_radius: float = PROFILER_START_RADIUS) -> np.ndarray:
     """The paper's scan lines as rows of flat slot indices (``-1`` pads), ``int64[L, n]``.
 
     Spinning sensor: one line per column, read from the lowest beam up. Profiler: each scan
-    line read outwards from its lowest return in both directions, two lines per row (rows
-    ``0..R-1`` up, ``R..2R-1`` down) which share only that first return; per-slot results take
-    the down line's (see :func:`shared_first`).
+    line read outwards from its lowest return within ``start_radius`` (horizontal distance from
+    the scanner; the lowest of all if none lies that close) in both directions, two lines per
+    row (rows ``0..R-1`` up, ``R..2R-1`` down) which share only that first return; per-slot
+    results take the down line's (see :func:`shared_first`).
+
+    The radius is ours: where the terrain falls away beside the street, the lowest return of a
+    line lies far across it, and the ground run found there is rejected by the 10 % test, so
+    the street itself went unlabelled (ground recall 0.38 on one simulated street, 0.73 with it).
     """
     rows, cols = scan.shape
     flat = np.arange(rows * cols).reshape(rows, cols)
@@ -62,8 +69,11 @@ def scan_lines(scan: Scan) -> np.ndarray:
         order = np.argsort(scan.sensor.altitude, kind="stable")
         return np.ascontiguousarray(flat[order].T)
     if isinstance(scan.sensor, ProfilerSensor):
-        z = np.where(scan.valid, scan.slot_xyz()[..., 2], np.inf)
-        low = np.argmin(z, axis=1)
+        xyz = scan.slot_xyz()
+        near = scan.valid & (np.hypot(xyz[..., 0], xyz[..., 1]) <= start_radius)
+        far_only = ~near.any(axis=1)
+        near[far_only] = scan.valid[far_only]
+        low = np.argmin(np.where(near, xyz[..., 2], np.inf), axis=1)
         half = cols // 2 + 1  # up: the lowest return and the next half - 1; down: it and the rest
         step = np.arange(half)
         up = flat[np.arange(rows)[:, None], (low[:, None] + step[None, :]) % cols]
@@ -140,12 +150,14 @@ def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0
 @dataclass
 class CoarseResult:
     """Per-slot results: ``codes`` (68 horizontal, 69 vertical, 5 vegetation, 0 no return),
-    ``t_prime`` (less sensitive vegetation), signed angles ``sv`` and line angles ``phi_hat``."""
+    ``t_prime`` (less sensitive vegetation), signed angles ``sv`` and line angles ``phi_hat``;
+    and the scan lines they were computed on (:func:`scan_lines`), which the later stages use."""
 
     codes: np.ndarray
     t_prime: np.ndarray
     sv: np.ndarray
     phi_hat: np.ndarray
+    lines: np.ndarray
 
 
 def coarse_classify(scan: Scan, params: CoarseParams | None = None) -> CoarseResult:
@@ -163,4 +175,4 @@ def coarse_classify(scan: Scan, params: CoarseParams | None = None) -> CoarseRes
     )  # fmt: skip
     shape = scan.shape
     assert L.VEGETATION == 5 and L.HORIZONTAL == 68 and L.VERTICAL == 69  # codes used by the kernel
-    return CoarseResult(codes.reshape(shape), tp.reshape(shape), sv.reshape(shape), phi.reshape(shape))
+    return CoarseResult(codes.reshape(shape), tp.reshape(shape), sv.reshape(shape), phi.reshape(shape), lines)

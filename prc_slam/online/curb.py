@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from prc_slam.online import kernels as K
-from prc_slam.online.coarse import CoarseResult, line_values, scan_lines
+from prc_slam.online.coarse import CoarseResult, line_values
 from prc_slam.prc import kernels as prc_kernels
 from prc_slam.scan import Scan, SpinningSensor
 
@@ -114,7 +114,7 @@ def detect_curbs(
     if z_ground is None:
         return CurbResult(mask)
     xyz = scan.slot_xyz()
-    lines = scan_lines(scan)
+    lines = coarse.lines
     pc = possible_curbs(
         xyz.reshape(-1, 3).astype(np.float64),
         coarse.codes.ravel(),

@@ -71,11 +71,13 @@ class OnlineDetector:
     def paper(cls) -> OnlineDetector:
         """The paper's readings throughout: successive differences on every sensor, one PC
         per line after its final ground return, range-image regions without a distance gate or
-        height floor, car returns down to the ground, and each line's own ground height."""
+        height floor, car returns down to the ground, the curb correction only on lines that
+        see the curb, and each line's own ground height. (Profiler lines still start within
+        ``coarse.PROFILER_START_RADIUS``: our reading of lines that "start at the ground".)"""
         return cls(
             CoarseParams(),
             curb=CurbParams(last_only=True, max_gap=float("inf"), min_height=0.0),
-            car=CarParams(min_above_ground=0.0),
+            car=CarParams(min_above_ground=0.0, curb_bridge=0.0),
             per_line_height=True,
         )
 

@@ -25,7 +25,7 @@ from numba import njit, prange
 
 from prc_slam import labels as L
 from prc_slam.online import kernels as K
-from prc_slam.online.coarse import CoarseResult, scan_lines
+from prc_slam.online.coarse import CoarseResult
 from prc_slam.scan import Scan
 
 HISTORY = 500
@@ -324,7 +324,7 @@ class GroundDetector:
         """Ground mask (rows, cols) of one scan, given its coarse classification. Afterwards
         :attr:`line_heights` holds the ground height of each of the scan's lines."""
         xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
-        lines = scan_lines(scan)
+        lines = coarse.lines
         args = (xyz, coarse.codes.ravel(), coarse.phi_hat.ravel(), scan.valid.ravel())
         had = self.have_zd
         ground, heights, pending = self._run(args, lines)
