@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from prc_slam import labels as L
 from prc_slam.online import OnlineDetector
 from prc_slam.online.car import A_CAR, A_REGULAR, detect_cars, high_frequency_dominant, markov_cusum_trigger
-from prc_slam.scan import ProfilerSensor, Scan
+from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
 
 HEIGHT = 2.6  # scanner above the road
 COLS = 2154
@@ -227,6 +227,7 @@ def test_behind_bridged_curb_hand_computed():
 
     scan = Scan(np.zeros((5, 4), np.float32), ProfilerSensor.create(5, 4, line_spacing=0.25))
     # 5 up lines (rows 0-4, scanners at x = 0, 0.25, ..., 1.0), then 5 down lines; 2 slots each
+    # (the lines' slots are made up: only their coordinates xy matter)
     lines = np.arange(20).reshape(10, 2)
     xy = np.zeros((20, 2))
     xy[:, 0] = np.repeat((np.arange(10) % 5) * 0.25, 2)
@@ -244,7 +245,11 @@ def test_behind_bridged_curb_hand_computed():
     curb[4] = -1
     assert not behind_bridged_curb(scan, lines, curb, xy, bridge=2.0).any()  # no curb after the gap
     curb[4], curb[6] = -1, 13
-    assert not behind_bridged_curb(scan, lines, curb, xy, bridge=2.0)[[3, 5, 7, 9]].any()  # other group
+    assert not behind_bridged_curb(scan, lines, curb, xy, bridge=2.0)[[3, 5, 7, 9]].any()  # other side
+    curb[4], curb[6] = 9, -1
+    assert behind_bridged_curb(scan, lines, curb, xy, bridge=2.0).any()
+    sweep = Scan(np.zeros((2, 10), np.float32), SpinningSensor.create(np.radians([0.0, -5.0]), 10))
+    assert not behind_bridged_curb(sweep, lines, curb, xy, bridge=2.0).any()  # profilers only
 
 
 def test_lawn_behind_a_curb_hidden_by_a_parked_car():

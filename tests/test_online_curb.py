@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from prc_slam.online import GroundDetector, coarse_classify
 from prc_slam.online.curb import detect_curbs
@@ -67,6 +68,7 @@ def test_detect_command_writes_labels_json_and_recording(tmp_path):
     import rerun.chunk as rc
     from typer.testing import CliRunner
 
+    from data_tools import open_dataset
     from data_tools.sim.dataset import write_sequence
     from data_tools.sim.simulator import SimConfig, Simulator
     from prc_slam.cli import app
@@ -90,9 +92,9 @@ def test_detect_command_writes_labels_json_and_recording(tmp_path):
     assert res.exit_code == 0, res.output
     m = json.loads((tmp_path / "d.json").read_text())
     assert m["frames"] == 2 and m["per_class"]["ground"]["precision"] > 0.95
+    n1 = open_dataset(root)[1].n_points
+    assert m["points_per_s_after_first"] == pytest.approx(n1 / (m["seconds"] - m["seconds_first"]))
     labels = np.fromfile(tmp_path / "labels" / "000000.label", dtype=np.uint32)
-    from data_tools import open_dataset
-
     assert len(labels) == open_dataset(root)[0].n_points  # one label per input point
     assert set(np.unique(labels)) <= {2, 5, 65, 66, 68, 69}
     paths = {c.entity_path for c in rc.RrdReader(str(tmp_path / "d.rrd")).store().stream()}

@@ -331,18 +331,6 @@ def detect_cars(
     return CarResult(car, instances, boxes)
 
 
-def line_groups(scan: Scan, n_lines: int) -> tuple[np.ndarray, np.ndarray]:
-    """Neighbouring scan lines: the group of each line (lines of one group are ordered so that
-    neighbours are adjacent: a spinning sensor's columns; a profiler's up lines and its down
-    lines, each by row) and each line's scanner position in :func:`instance_coordinates`."""
-    origin = np.zeros((n_lines, 2))
-    if isinstance(scan.sensor, ProfilerSensor):
-        rows = scan.shape[0]
-        origin[:, 0] = (np.arange(n_lines) % rows) * scan.sensor.line_spacing
-        return np.arange(n_lines) // rows, origin
-    return np.zeros(n_lines, np.int64), origin
-
-
 def behind_bridged_curb(
     scan: Scan, lines: np.ndarray, curb_slot: np.ndarray, xy: np.ndarray, bridge: float
 ) -> np.ndarray:
@@ -350,26 +338,34 @@ def behind_bridged_curb(
 
     A parked car hides the curb behind it from the lines that cross the car, so the paper's
     correction (which needs the curb on the line) cannot revert the raised lawn or hedge seen
-    over the car. For a line without a verified curb return between two lines of its group that
-    have one, at most ``bridge`` apart, the curb runs along the segment A-B joining those two
-    returns; a return on the far side of the line A-B from the line's scanner position is
-    behind it. ``xy`` holds the slots' horizontal coordinates (:func:`instance_coordinates`).
+    over the car. For a profiler line without a verified curb return between two lines on its
+    side (its up or down lines, by row) that have one, at most ``bridge`` apart, the curb runs
+    along the segment A-B joining those two returns; a return on the far side of the line A-B
+    from the line's scanner position is behind it. ``xy`` holds the slots' horizontal
+    coordinates (:func:`instance_coordinates`).
+
+    Profilers only: the columns of a spinning sensor's sweep are not ordered along one curb
+    (the nearest curb returns either side of a gap can lie on opposite curbs, and the road
+    between them would be "behind"); on KITTI 00 it cost vehicle recall (0.098 -> 0.086).
     """
-    n_lines = len(lines)
-    group, origin = line_groups(scan, n_lines)
+    behind = np.zeros(len(xy), bool)
+    if not isinstance(scan.sensor, ProfilerSensor):
+        return behind
+    n_lines, rows = len(lines), scan.shape[0]
     idx = np.arange(n_lines)
+    side_of = idx // rows  # up lines, then down lines, each by row
+    origin = np.zeros((n_lines, 2))
+    origin[:, 0] = (idx % rows) * scan.sensor.line_spacing
     has = curb_slot >= 0
-    # nearest line with a curb before / after, within the same group (lines of a group are contiguous)
-    prev = np.maximum.accumulate(np.where(has, idx, -1))
+    prev = np.maximum.accumulate(np.where(has, idx, -1))  # nearest line with a curb before / after
     nxt = np.minimum.accumulate(np.where(has, idx, n_lines)[::-1])[::-1]
     ok = ~has & (prev >= 0) & (nxt < n_lines)
-    ok[ok] &= (group[prev[ok]] == group[idx[ok]]) & (group[nxt[ok]] == group[idx[ok]])
+    ok[ok] &= (side_of[prev[ok]] == side_of[ok]) & (side_of[nxt[ok]] == side_of[ok])
     a = np.full((n_lines, 2), np.nan)
     b = np.full((n_lines, 2), np.nan)
     a[ok] = xy[curb_slot[prev[ok]]]
     b[ok] = xy[curb_slot[nxt[ok]]]
     ok[ok] = np.linalg.norm(b[ok] - a[ok], axis=1) <= bridge
-    behind = np.zeros(len(xy), bool)
     if not ok.any():
         return behind
     slots = lines[ok]
