@@ -457,7 +457,9 @@ def detect(
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
     log_every: int = EVERY_OPT,
-    paper: bool = typer.Option(False, "--paper", help="the paper's readings only (our deviations off)"),
+    paper: bool = typer.Option(
+        False, "--paper", help="the paper's readings (our deviations off, except where profiler lines start)"
+    ),
 ) -> None:
     """Online per-scan-line detectors (paper 001): horizontal / vertical / vegetation, ground,
     curbs with polylines and cars with boxes; scored against ground truth when the input has it."""
