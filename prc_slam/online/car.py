@@ -324,7 +324,7 @@ def detect_cars(
         floor = np.full(xyz.shape[0], np.inf)
         floor[lines[lines >= 0]] = np.broadcast_to(z_line[:, None], lines.shape)[lines >= 0]
         car &= (xyz[:, 2] >= floor + p.min_above_ground).reshape(scan.shape)
-    coords = instance_coordinates(scan)
+    coords = instance_coordinates(scan, xyz)
     if p.curb_bridge > 0:
         car &= ~behind_bridged_curb(scan, lines, curb_slot, coords[:, :2], p.curb_bridge).reshape(scan.shape)
     instances, boxes = car_instances(car, coords)
@@ -355,7 +355,7 @@ def behind_bridged_curb(
     idx = np.arange(n_lines)
     side_of = idx // rows  # up lines, then down lines, each by row
     origin = np.zeros((n_lines, 2))
-    origin[:, 0] = (idx % rows) * scan.sensor.line_spacing
+    origin[:, 0] = along_track(scan)[idx % rows]
     has = curb_slot >= 0
     prev = np.maximum.accumulate(np.where(has, idx, -1))  # nearest line with a curb before / after
     nxt = np.minimum.accumulate(np.where(has, idx, n_lines)[::-1])[::-1]
@@ -380,15 +380,24 @@ def behind_bridged_curb(
     return behind
 
 
-def instance_coordinates(scan: Scan) -> np.ndarray:
-    """Slot coordinates for grouping and boxes, ``float64[rows * cols, 3]``: the sensor frame,
-    and for a profiler each scan line moved ``line_spacing`` further along the platform's x
-    axis (a straight drive at constant speed), since all its lines share one scan plane."""
-    xyz = scan.slot_xyz().astype(np.float64)
+def along_track(scan: Scan) -> np.ndarray:
+    """Position of each row's scanner along the platform's x axis, ``float64[rows]``: a
+    profiler moves ``line_spacing`` per scan line (a straight drive at constant speed); a
+    spinning sensor's sweep has one scanner position (zeros)."""
     if isinstance(scan.sensor, ProfilerSensor):
-        xyz = xyz.copy()
-        xyz[..., 0] += np.arange(scan.shape[0])[:, None] * scan.sensor.line_spacing
-    return xyz.reshape(-1, 3)
+        return np.arange(scan.shape[0]) * scan.sensor.line_spacing
+    return np.zeros(scan.shape[0])
+
+
+def instance_coordinates(scan: Scan, xyz: np.ndarray) -> np.ndarray:
+    """Slot coordinates for grouping and boxes, ``float64[rows * cols, 3]``, from the scan's
+    flat sensor-frame ``xyz``: for a profiler each scan line is moved to its scanner position
+    (:func:`along_track`), since all its lines share one scan plane."""
+    if not isinstance(scan.sensor, ProfilerSensor):
+        return xyz
+    out = xyz.reshape((*scan.shape, 3)).copy()
+    out[..., 0] += along_track(scan)[:, None]
+    return out.reshape(-1, 3)
 
 
 def car_instances(
