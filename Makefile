@@ -9,7 +9,9 @@ $(STAMP): pyproject.toml
 	bash scripts/ensure_system_deps.sh
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m pip install --quiet -e ".[dev,peers,ouster]"
+	# ouster-sdk's own pins clash with rerun-sdk and typer (see pyproject.toml): no deps
+	$(PY) -m pip install --quiet --no-deps "ouster-sdk>=0.15,<2"
 	touch $(STAMP)
 
 setup: $(STAMP)

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from prc_slam.config import PRCConfig
+from prc_slam.prc.config import PRCConfig
 from prc_slam.prc import prc_block
 
 PAPER_PRC_POINTS_PER_S = 0.13e6  # Lehtola et al. 2019, Sec. IV-D (urban)

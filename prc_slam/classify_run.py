@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from prc_slam import labels as L
-from prc_slam.config import PRCConfig
+from prc_slam.prc.config import PRCConfig
 from prc_slam.evaluation import ConfusionAccumulator
 from prc_slam.pipeline import classify_frames
 from prc_slam.prc.algorithm import warm_up

@@ -7,7 +7,6 @@ next to every result.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field
@@ -16,74 +15,7 @@ from prc_slam.filtering import FilterConfig
 from prc_slam.mapclass.classify import MapClassConfig
 from prc_slam.odometry.classaware import ClassAwareConfig
 from prc_slam.odometry.kiss import OdometryConfig
-
-
-class PRCConfig(BaseModel):
-    """Parameters of preregistration classification (Lehtola et al. 2019, Sec. II).
-
-    Names follow the paper: ``k`` scan lines per block, support thresholds ``xi_s``
-    (adjacent-slice, eq. 5) and ``xi_p`` (in-slice, eq. 6), cover density ``rho_c`` (eq. 3),
-    gradient tolerance ``alpha`` and minimal length ``d_c`` (eq. 9), area ``A`` and dilations
-    ``gamma`` (eq. 11), and the forest column-density threshold (eq. 12).
-    """
-
-    model_config = ConfigDict(extra="forbid")
-
-    mode: Literal["urban", "forest"] = "urban"
-    k: int = Field(99, ge=1, description="scan lines per block (profiler); a sweep is one block")
-    xi_s: float = Field(1.0, ge=0.0, description="adjacent-slice range threshold (m), eq. (5)")
-    xi_p: float = Field(1.0, ge=0.0, description="in-slice range threshold (m), eq. (6)")
-    rho_c: float = Field(1.0 / 3.0, gt=0.0, le=1.0, description="minimum support cover density, eq. (3)")
-    in_slice_half: int = Field(4, ge=1, description="N_in-slice = r_{i-n}..r_{i+n} without i, eq. (8)")
-    alpha: float = Field(0.3, ge=0.0, lt=0.5, description="tolerance ratio of eq. (9)")
-    d_c: float = Field(0.05, gt=0.0, description="minimal characteristic length (m), eq. (9)")
-    gradient: Literal["symmetric", "literal"] = Field(
-        "symmetric", description="eq. (9) as printed ('literal') or its symmetric form (see kernels)"
-    )
-    gradient_axes: Literal["in_slice", "both"] = Field(
-        "in_slice", description="eq. (9) along the scan line only (paper) or also across scan lines"
-    )
-    A: int = Field(30, ge=1, description="area (pixels) from which a segment is smooth, eq. (11)")
-    gamma: int = Field(2, ge=0, description="4-neighbour dilations of the nonsmooth set, Sec. II-E")
-    boundary_votes: int = Field(3, ge=1, description="votes needed to carry a label over a block boundary")
-    density_threshold: float = Field(1.0 / 3.0, description="forest ground: column smoothness density, eq. (12)")
-    density_stride: int = Field(10, ge=1, description="forest ground: eq. (12) evaluated every n-th column")
-    density_axis: Literal["columns", "rows"] | None = Field(
-        None, description="eq. (12) along block columns (profiler, the paper) or along rings; None: by sensor"
-    )
-    density_window: int = Field(512, ge=1, description="rows axis: columns per density window")
-    adaptive: bool = Field(False, description="scale xi_s, xi_p with the expected neighbour spacing")
-    adaptive_incidence_deg: float = Field(
-        85.0, ge=0.0, lt=90.0, description="adaptive mode: steepest incidence angle the thresholds allow for"
-    )
-    wrap_columns: bool | None = Field(None, description="columns wrap around (None: yes for spinning sensors)")
-
-    @classmethod
-    def preset(cls, name: str, **overrides: object) -> PRCConfig:
-        """Presets. The paper's ``urban`` (k = 99, xi = 1.0 m, A = 30, gamma = 2) and ``forest``
-        (k = 255, xi = 0.01 m); and ``multibeam``, our setting for spinning multi-beam sensors:
-        urban plus thresholds scaled with the slot spacing, eq. (9) also across scan lines and
-        ``d_c = 0.5 m``."""
-        presets: dict[str, dict[str, object]] = {
-            "urban": {"mode": "urban", "k": 99, "xi_s": 1.0, "xi_p": 1.0, "A": 30, "gamma": 2},
-            "forest": {"mode": "forest", "k": 255, "xi_s": 0.01, "xi_p": 0.01, "A": 30, "gamma": 2},
-            # beyond the paper, measured on KITTI 00 frames 0-2 (README, "PRC on multi-beam data")
-            "multibeam": {
-                "mode": "urban",
-                "k": 99,
-                "xi_s": 1.0,
-                "xi_p": 1.0,
-                "A": 30,
-                "gamma": 2,
-                "adaptive": True,
-                "adaptive_incidence_deg": 89.0,
-                "gradient_axes": "both",
-                "d_c": 0.5,
-            },
-        }
-        if name not in presets:
-            raise ValueError(f"unknown PRC preset {name!r}; choose from {sorted(presets)}")
-        return cls(**{**presets[name], **overrides})
+from prc_slam.prc.config import PRCConfig
 
 
 class Config(BaseModel):

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from prc_slam.config import PRCConfig
+from prc_slam.prc.config import PRCConfig
 from prc_slam.prc import PRCStream, prc_block
 from prc_slam.scan import Scan
 

@@ -10,9 +10,11 @@ from prc_slam.prc.algorithm import (
     support_thresholds,
     supported_mask,
 )
+from prc_slam.prc.config import PRCConfig
 
 __all__ = [
     "BlockResult",
+    "PRCConfig",
     "PRCState",
     "PRCStream",
     "classify_scan",

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from prc_slam import labels as L
-from prc_slam.config import PRCConfig
 from prc_slam.prc import kernels
+from prc_slam.prc.config import PRCConfig
 from prc_slam.scan import Scan, SensorModel
 
 #: |N_adj-slice| of eq. (7): three slots in the previous and three in the next scan line.
