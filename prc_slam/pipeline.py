@@ -1,33 +1,54 @@
-"""The per-frame loop composing the stages. Today: PRC classification of a sequence."""
+"""The one per-frame loop: source → organise → PRC → online detectors → filter → odometry → sinks.
+
+:class:`Pipeline` composes the stages a run asks for and hands every frame, as one
+:class:`PipelineFrame`, to each sink in turn (scorers, label files, LAS, trajectories, the
+filtered stream, Rerun). Every command of the CLI is a configuration of it; users who bring their
+own loop take :class:`prc_slam.preprocess.Preprocessor` or :class:`prc_slam.preprocess.PRCKissICP`
+instead.
+
+Frames that cannot be read are skipped, counted and reported (``PipelineResult.skipped``), never
+silently dropped; a run in which no frame could be read is an error naming the first problem.
+"""
 
 from __future__ import annotations
 
+import logging
 import time
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
-from prc_slam.prc.config import PRCConfig
 from prc_slam.prc import PRCStream, prc_block
-from prc_slam.scan import Scan
+from prc_slam.prc.config import PRCConfig
+from prc_slam.scan import Scan, ScanError
+
+log = logging.getLogger("prc_slam.pipeline")
+
+
+class FrameError(ValueError):
+    """A frame of the input could not be read; the message names the file and the problem."""
 
 
 @dataclass
 class ClassifiedFrame:
     """One input frame with its PRC labels per slot and the PRC compute time spent on it.
 
-    ``one_sided`` marks noise slots that meet one of the two support conditions of eq. (4)
-    (thin poles, edges), as opposed to isolated returns.
+    ``labels`` is None when the run has no PRC stage. ``one_sided`` marks noise slots that meet
+    one of the two support conditions of eq. (4) (thin poles, edges), as opposed to isolated
+    returns.
     """
 
     scan: Scan
-    labels: np.ndarray
+    labels: np.ndarray | None
     seconds: float
     one_sided: np.ndarray | None = None
 
     def point_labels(self) -> np.ndarray:
         """Labels per input point, in input order."""
+        if self.labels is None:
+            raise ValueError(f"{self.scan.source}: this run has no PRC labels")
         return self.scan.per_point(self.labels)
 
     def point_one_sided(self) -> np.ndarray:
@@ -58,7 +79,9 @@ def classify_frames(scans: Iterable[Scan], config: PRCConfig) -> Iterator[Classi
         if stream is None:
             stream = PRCStream(config, scan.sensor)
         elif scan.sensor.cols != stream.sensor.cols:
-            raise ValueError(f"{scan.source}: {scan.sensor.cols} points per scan line, stream has {stream.sensor.cols}")
+            raise ScanError(
+                f"{scan.source}: {scan.sensor.cols} points per scan line, the stream has {stream.sensor.cols}"
+            )
         pending.append((scan, next_row, np.zeros(scan.shape, dtype=np.uint8), np.zeros(scan.shape, dtype=bool)))
         next_row += scan.shape[0]
         t0 = time.perf_counter()
@@ -95,3 +118,229 @@ def _complete(pending: list, blocks: list) -> list[tuple[Scan, np.ndarray, np.nd
         scan, _, labels, one_sided = pending.pop(0)
         out.append((scan, labels, one_sided))
     return out
+
+
+@dataclass
+class PipelineFrame:
+    """Everything the stages produced for one input frame, as the sinks see it.
+
+    Attributes
+    ----------
+    index : int
+        Position of the frame in the run (0-based, skipped frames not counted).
+    frame : ClassifiedFrame
+        The scan and its PRC labels per slot (``labels`` None without a PRC stage).
+    online : object or None
+        The online detectors' result (:class:`prc_slam.online.OnlineResult`), when run.
+    odometry : object or None
+        The odometry variants' record of this frame (``prc_slam.odometry.compare.FrameRecord``).
+    """
+
+    index: int
+    frame: ClassifiedFrame
+    online: Any = None
+    odometry: Any = None
+
+    @property
+    def scan(self) -> Scan:
+        return self.frame.scan
+
+
+@dataclass
+class Skip:
+    """A frame left out of the run, and why."""
+
+    index: int
+    source: str
+    reason: str
+
+
+@dataclass
+class PipelineResult:
+    """What a run produced, for the sinks' ``close`` and the caller.
+
+    ``prc_seconds`` and ``online_seconds`` are the stages' own compute times (what
+    ``points_per_s`` divides by); ``wall_seconds`` is the whole loop.
+    """
+
+    frames: int = 0
+    points: int = 0
+    nonfinite_points: int = 0
+    empty_frames: int = 0
+    prc_seconds: float = 0.0
+    online_seconds: float = 0.0
+    online_seconds_first: float = 0.0
+    online_points_first: int = 0
+    wall_seconds: float = 0.0
+    skipped: list[Skip] = field(default_factory=list)
+    odometry: Any = None
+    organize: dict[str, Any] = field(default_factory=dict)
+    interrupted: bool = False
+
+    def summary(self) -> dict[str, Any]:
+        """Counts for the metrics JSON: frames, points, skipped frames and points, organiser warnings."""
+        out: dict[str, Any] = {
+            "frames": self.frames,
+            "points": self.points,
+            "skipped_frames": len(self.skipped),
+            "skipped_points": self.nonfinite_points,
+            "empty_frames": self.empty_frames,
+        }
+        if self.skipped:
+            out["skips"] = [{"index": s.index, "source": s.source, "reason": s.reason} for s in self.skipped]
+        if self.organize:
+            out["organize"] = self.organize
+        if self.interrupted:
+            out["interrupted"] = True
+        return out
+
+
+class Sink(Protocol):
+    """Receives every frame of a run, then the result. Sinks must not modify what they get."""
+
+    def frame(self, step: PipelineFrame) -> None: ...
+
+    def close(self, result: PipelineResult) -> None: ...
+
+
+class OdometryStage(Protocol):
+    """The odometry variants as one stage (``prc_slam.odometry.compare.OdometryVariants``)."""
+
+    def step(self, index: int, frame: ClassifiedFrame) -> Any: ...
+
+    def result(self) -> Any: ...
+
+
+class Pipeline:
+    """One per-frame loop over the stages a run needs, feeding its sinks.
+
+    Parameters
+    ----------
+    prc : PRCConfig or None
+        Run PRC with this configuration (None: no PRC stage; frames carry no labels).
+    online : object or None
+        An :class:`prc_slam.online.OnlineDetector` to run on every scan.
+    odometry : OdometryStage or None
+        The odometry variants (each filters with the PRC labels as its policy says, then registers).
+    sinks : sequence of Sink
+        Called in order for every frame and once at the end.
+    on_frame : callable, optional
+        Called after the sinks for every frame (progress bars).
+    warn : callable(str), optional
+        Receives every warning (organiser, skipped frames); defaults to the module logger.
+
+    Examples
+    --------
+    >>> from prc_slam import Pipeline, PRCConfig
+    >>> from prc_slam.scoring import PRCScorer
+    >>> scorer = PRCScorer()
+    >>> result = Pipeline(prc=PRCConfig.preset("multibeam"), sinks=[scorer]).run(scans)  # doctest: +SKIP
+    >>> scorer.metrics(result)["per_class"]["ground"]["recall"]  # doctest: +SKIP
+    """
+
+    def __init__(
+        self,
+        *,
+        prc: PRCConfig | None = None,
+        online: Any = None,
+        odometry: OdometryStage | None = None,
+        sinks: Sequence[Sink] = (),
+        on_frame: Callable[[PipelineFrame], None] | None = None,
+        warn: Callable[[str], None] | None = None,
+    ) -> None:
+        self.prc = prc
+        self.online = online
+        self.odometry = odometry
+        self.sinks = list(sinks)
+        self.on_frame = on_frame
+        self.warn = warn or log.warning
+
+    def _readable(self, scans: Iterable[Scan], result: PipelineResult) -> Iterator[Scan]:
+        """The scans that could be read; the others are skipped with a warning and counted."""
+        it = iter(scans)
+        index = 0
+        while True:
+            try:
+                scan = next(it)
+            except StopIteration:
+                return
+            except (FrameError, ScanError) as exc:
+                result.skipped.append(Skip(index, getattr(exc, "source", ""), str(exc)))
+                self.warn(f"skipped frame {index}: {exc}")
+                index += 1
+                continue
+            index += 1
+            org = scan.meta.get("organize")
+            if org:
+                self._merge_organize(result, org, scan.source)
+            bad = int(scan.meta.get("nonfinite_points", 0))
+            if bad:
+                result.nonfinite_points += bad
+            yield scan
+
+    def _merge_organize(self, result: PipelineResult, org: dict[str, Any], source: str) -> None:
+        agg = result.organize
+        agg["method"] = org.get("method")
+        agg["frames"] = agg.get("frames", 0) + 1
+        agg["rings"] = org.get("rings")
+        agg["collisions_pct_max"] = max(agg.get("collisions_pct_max", 0.0), float(org.get("collisions_pct", 0.0)))
+        warnings = org.get("warnings") or []
+        if warnings:
+            agg["warnings"] = agg.get("warnings", 0) + len(warnings)
+            for w in warnings:
+                self.warn(w if source in w else f"{source}: {w}")
+
+    def _classified(self, scans: Iterable[Scan]) -> Iterator[ClassifiedFrame]:
+        if self.prc is not None:
+            yield from classify_frames(scans, self.prc)
+        else:
+            for scan in scans:
+                yield ClassifiedFrame(scan, None, 0.0)
+
+    def run(self, scans: Iterable[Scan]) -> PipelineResult:
+        """Run every stage over ``scans`` and return what was produced.
+
+        A ``KeyboardInterrupt`` stops the loop after the current frame's sinks: the sinks are
+        closed with ``result.interrupted = True`` (so they can mark their outputs partial) and the
+        interrupt is raised again.
+        """
+        result = PipelineResult()
+        t_start = time.perf_counter()
+        try:
+            for index, frame in enumerate(self._classified(self._readable(scans, result))):
+                scan = frame.scan
+                n = scan.n_points
+                result.frames += 1
+                result.points += n
+                result.prc_seconds += frame.seconds
+                if n == 0:
+                    result.empty_frames += 1
+                    self.warn(f"{scan.source}: empty sweep (no returns)")
+                step = PipelineFrame(index, frame)
+                if self.online is not None:
+                    step.online = self.online.process(scan)
+                    result.online_seconds += step.online.seconds
+                    if index == 0:  # the first frame also loads the compiled kernels
+                        result.online_seconds_first = step.online.seconds
+                        result.online_points_first = n
+                if self.odometry is not None:
+                    step.odometry = self.odometry.step(index, frame)
+                for sink in self.sinks:
+                    sink.frame(step)
+                if self.on_frame is not None:
+                    self.on_frame(step)
+        except KeyboardInterrupt:
+            result.interrupted = True
+            self._finish(result, t_start)
+            raise
+        self._finish(result, t_start)
+        if result.frames == 0 and result.skipped:
+            raise FrameError(f"no frame could be read; first problem: {result.skipped[0].reason}")
+        return result
+
+    def _finish(self, result: PipelineResult, t_start: float) -> None:
+        result.wall_seconds = time.perf_counter() - t_start
+        if self.odometry is not None:
+            result.odometry = self.odometry.result()
+        for sink in self.sinks:
+            sink.close(result)

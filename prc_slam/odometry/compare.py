@@ -109,40 +109,50 @@ class CompareResult:
         return {"variants": out}
 
 
-def run_compare(
-    scans: Iterable[Scan],
-    config: Config,
-    variants: Iterable[str] = DEFAULT_VARIANTS,
-    on_frame: Callable[[FrameRecord], None] | None = None,
-) -> CompareResult:
-    """Run every variant over ``scans`` in one pass."""
-    variants = list(variants)
-    unknown = [v for v in variants if v not in VARIANTS]
-    if unknown:
-        raise ValueError(f"unknown variants {unknown}; choose from {list(VARIANTS)}")
-    runs = {
-        v: VariantRun(
-            v,
-            ClassAwareOdometry(config.odometry, config.classaware)
-            if v == "prc+classaware"
-            else KissOdometry(config.odometry),
-        )
-        for v in variants
-    }
-    warm_up()
-    if "prc+classaware" in variants:
-        classaware.warm_up()
-    gt, times, names = [], [], []
-    needs_prc = any(v != "raw" for v in variants)
-    frames = classify_frames(scans, config.prc) if needs_prc else (ClassifiedFrame(s, None, 0.0) for s in scans)
-    for i, frame in enumerate(frames):
+class OdometryVariants:
+    """The odometry variants as one pipeline stage: every frame is filtered and registered by each
+    variant in turn (so machine noise hits all variants alike).
+
+    ``step(index, frame)`` takes a :class:`~prc_slam.pipeline.ClassifiedFrame` (PRC labels needed
+    by every variant but ``raw``) and returns the frame's :class:`FrameRecord`; ``result()`` the
+    :class:`CompareResult` so far.
+    """
+
+    def __init__(self, config: Config, variants: Iterable[str] = DEFAULT_VARIANTS) -> None:
+        variants = list(variants)
+        if not variants:
+            raise ValueError("--variants: give at least one variant")
+        unknown = [v for v in variants if v not in VARIANTS]
+        if unknown:
+            raise ValueError(f"--variants: unknown variants {unknown}; choose from {list(VARIANTS)}")
+        self.config = config
+        self.runs = {
+            v: VariantRun(
+                v,
+                ClassAwareOdometry(config.odometry, config.classaware)
+                if v == "prc+classaware"
+                else KissOdometry(config.odometry),
+            )
+            for v in variants
+        }
+        self.needs_prc = any(v != "raw" for v in variants)
+        warm_up()
+        if "prc+classaware" in variants:
+            classaware.warm_up()
+        self.gt: list[np.ndarray | None] = []
+        self.times: list[float] = []
+        self.names: list[str] = []
+
+    def step(self, index: int, frame: ClassifiedFrame) -> FrameRecord:
+        """Filter and register one frame with every variant."""
+        config = self.config
         scan = frame.scan
         pts = scan.points()
         t = scan.point_times()
         kept: dict[str, np.ndarray] = {}
         poses: dict[str, np.ndarray] = {}
-        labels = frame.point_labels() if needs_prc else None
-        for name, run in runs.items():
+        labels = frame.point_labels() if self.needs_prc else None
+        for name, run in self.runs.items():
             if name == "raw":
                 keep = np.ones(len(pts), dtype=bool)
             else:
@@ -163,10 +173,28 @@ def run_compare(
             run.points_in.append(len(pts))
             run.points_to_icp.append(int(keep.sum()))
             kept[name] = keep
-        gt.append(scan.gt_pose)
-        times.append(scan.meta.get("frame_time", float(i)))
-        names.append(scan.name)
+        self.gt.append(scan.gt_pose)
+        self.times.append(scan.meta.get("frame_time", float(index)))
+        self.names.append(scan.name)
+        return FrameRecord(frame, index, kept, poses, self.runs)
+
+    def result(self) -> CompareResult:
+        gt = self.gt
+        gt_poses = np.array(gt) if gt and all(g is not None for g in gt) else None
+        return CompareResult(self.runs, gt_poses, np.asarray(self.times, dtype=float), self.names)
+
+
+def run_compare(
+    scans: Iterable[Scan],
+    config: Config,
+    variants: Iterable[str] = DEFAULT_VARIANTS,
+    on_frame: Callable[[FrameRecord], None] | None = None,
+) -> CompareResult:
+    """Run every variant over ``scans`` in one pass (PRC first when a variant needs it)."""
+    stage = OdometryVariants(config, variants)
+    frames = classify_frames(scans, config.prc) if stage.needs_prc else (ClassifiedFrame(s, None, 0.0) for s in scans)
+    for i, frame in enumerate(frames):
+        record = stage.step(i, frame)
         if on_frame is not None:
-            on_frame(FrameRecord(frame, i, kept, poses, runs))
-    gt_poses = np.array(gt) if gt and all(g is not None for g in gt) else None
-    return CompareResult(runs, gt_poses, np.asarray(times, dtype=float), names)
+            on_frame(record)
+    return stage.result()

@@ -109,8 +109,13 @@ class RerunSink:
         self.config = config or VizConfig()
         self._positions: dict[str, list[np.ndarray]] = {}
         self._gt: list[np.ndarray] = []
+        self._pose: np.ndarray | None = None
         self.rec.log("/", annotation_context(), static=True)
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+
+    def current_pose(self) -> np.ndarray | None:
+        """The main variant's pose of the last logged frame, in the logged world frame."""
+        return self._pose
 
     def warn(self, message: str) -> None:
         """A warning or a skip in the text log."""
@@ -210,6 +215,7 @@ class RerunSink:
             p = world_from_first @ pose
             self._positions.setdefault(name, []).append(p[:3, 3])
             if name == main:
+                self._pose = p
                 self.rec.log("world/sensor", rr.Transform3D(translation=p[:3, 3], mat3x3=p[:3, :3]))
                 if gt_pose is not None:
                     err = float(np.linalg.norm(p[:3, 3] - gt_pose[:3, 3]))

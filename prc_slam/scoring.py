@@ -1,0 +1,103 @@
+"""Scorers: pipeline sinks that score a run's labels against the input's ground truth.
+
+:class:`PRCScorer` gives the ``classify`` metrics JSON of DESIGN.md, :class:`OnlineScorer` the
+``detect`` one. Both count frames and points themselves and score only frames that carry
+reference labels.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from prc_slam import labels as L
+from prc_slam.evaluation import ConfusionAccumulator, objects_found
+from prc_slam.pipeline import PipelineFrame, PipelineResult
+
+#: Reference classes whose points must not be called noise.
+SOLID_CLASSES = [L.GROUND, L.BUILDING, L.VEGETATION, L.TRUNK, L.VEHICLE, L.POLE]
+
+
+class PRCScorer:
+    """PRC labels against the reference labels of every frame that has them."""
+
+    def __init__(self) -> None:
+        self.confusion = ConfusionAccumulator()
+        self.have_gt = False
+
+    def frame(self, step: PipelineFrame) -> None:
+        ref = step.scan.reference_labels()
+        if ref is None or step.frame.labels is None:
+            return
+        self.have_gt = True
+        self.confusion.add(ref, step.frame.point_labels())
+
+    def close(self, result: PipelineResult) -> None:
+        pass
+
+    def metrics(self, result: PipelineResult) -> dict[str, Any]:
+        """The ``classify`` metrics JSON (``per_class`` and ``confusion`` only with ground truth)."""
+        out: dict[str, Any] = {
+            **result.summary(),
+            "seconds": result.prc_seconds,
+            "wall_seconds": result.wall_seconds,
+            "points_per_s": result.points / result.prc_seconds if result.prc_seconds > 0 else None,
+        }
+        if self.have_gt:
+            out["per_class"] = self.confusion.per_class()
+            out["confusion"] = self.confusion.to_json()
+            out["noise_in_solid_classes"] = self.confusion.fraction(SOLID_CLASSES, L.NOISE)
+        return out
+
+
+class OnlineScorer:
+    """Online detector labels against the reference, plus vehicles and curb sections found."""
+
+    OBJECT_CODES = (L.VEHICLE, L.CURB)
+
+    def __init__(self) -> None:
+        self.confusion = ConfusionAccumulator()
+        self.have_gt = False
+        self.curbs = 0
+        self.objects = {code: np.zeros(2, int) for code in self.OBJECT_CODES}  # found, present
+
+    def frame(self, step: PipelineFrame) -> None:
+        res = step.online
+        if res is None:
+            return
+        scan = step.scan
+        self.curbs += len(res.curb_polylines)
+        ref = scan.reference_labels()
+        if ref is not None:
+            self.have_gt = True
+            self.confusion.add(ref, scan.per_point(res.labels))
+        if scan.gt_labels is not None and scan.gt_instance is not None:
+            for code in self.OBJECT_CODES:
+                found, present = objects_found(scan.gt_labels, scan.gt_instance, res.labels, code)
+                self.objects[code] += np.array([found, present])
+
+    def close(self, result: PipelineResult) -> None:
+        pass
+
+    def metrics(self, result: PipelineResult) -> dict[str, Any]:
+        """The ``detect`` metrics JSON; ``points_per_s_after_first`` leaves out the first frame,
+        which also loads the compiled kernels."""
+        seconds, first = result.online_seconds, result.online_seconds_first
+        out: dict[str, Any] = {
+            **result.summary(),
+            "seconds": seconds,
+            "seconds_first": first,
+            "points_per_s": result.points / seconds if seconds > 0 else None,
+            "points_per_s_after_first": (
+                (result.points - result.online_points_first) / (seconds - first) if seconds > first else None
+            ),
+            "curb_polylines_per_frame": self.curbs / max(result.frames, 1),
+        }
+        if self.have_gt:
+            out["per_class"] = self.confusion.per_class()
+            out["confusion"] = self.confusion.to_json()
+            out["objects"] = {
+                L.CODE_TO_NAME[code]: {"found": int(fp[0]), "present": int(fp[1])} for code, fp in self.objects.items()
+            }
+        return out
