@@ -1,5 +1,5 @@
-"""Point-cloud files for map classification: LAS/LAZ (streamed in chunks with laspy), PLY and
-PCD (Open3D), NPY (an ``(N, 3)`` array, memory-mapped).
+"""Point-cloud files for map classification: LAS/LAZ (streamed in chunks with laspy; LAZ through
+the ``lazrs`` backend), PLY and PCD (Open3D), NPY (an ``(N, 3)`` array, memory-mapped).
 """
 
 from __future__ import annotations
@@ -12,6 +12,30 @@ import numpy as np
 from data_tools.errors import DataError
 
 CLOUD_SUFFIXES = (".las", ".laz", ".ply", ".pcd", ".npy")
+
+
+def laz_backend(path: str | Path) -> tuple | None:
+    """The laspy LAZ backends to use for ``path``: None for ``.las``; for ``.laz`` the ``lazrs``
+    backends (parallel first) when installed, else any other laspy can find.
+
+    Raises
+    ------
+    DataError
+        For a ``.laz`` when no backend is installed (laspy's own message, "No LazBackend selected",
+        does not say what to install).
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".laz":
+        return None
+    import laspy
+
+    available = laspy.LazBackend.detect_available()
+    preferred = tuple(b for b in (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs) if b in available)
+    if preferred:
+        return preferred
+    if available:
+        return tuple(available)
+    raise DataError(f"{path}: LAZ needs a LAZ backend for laspy: install lazrs (pip install lazrs)")
 
 
 def is_cloud_file(path: str | Path) -> bool:
@@ -44,10 +68,11 @@ def cloud_size(path: str | Path) -> int:
     if suffix in (".las", ".laz"):
         import laspy
 
+        backend = laz_backend(path)
         try:
-            with laspy.open(path) as f:
+            with laspy.open(path, laz_backend=backend) as f:
                 return int(f.header.point_count)
-        except (laspy.LaspyException, ValueError, OSError) as e:
+        except (laspy.LaspyException, ValueError, OSError, RuntimeError) as e:  # lazrs errors are RuntimeErrors
             raise DataError(f"{path}: not a readable LAS file ({e})") from e
     return sum(len(c) for c in cloud_chunks(path))
 
@@ -67,14 +92,15 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
     if suffix in (".las", ".laz"):
         import laspy
 
+        backend = laz_backend(path)
         try:
-            with laspy.open(path) as f:
+            with laspy.open(path, laz_backend=backend) as f:
                 expected = int(f.header.point_count)
                 seen = 0
                 for pts in f.chunk_iterator(chunk):
                     seen += len(pts)
                     yield np.column_stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)])
-        except (laspy.LaspyException, ValueError, OSError) as e:
+        except (laspy.LaspyException, ValueError, OSError, RuntimeError) as e:  # lazrs errors are RuntimeErrors
             raise DataError(f"{path}: not a readable LAS file ({e})") from e
         if seen != expected:
             raise DataError(f"{path}: header announces {expected} points, file holds {seen} (truncated?)")

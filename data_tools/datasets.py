@@ -11,7 +11,9 @@ import numpy as np
 from data_tools.errors import DataError
 from prc_slam.scan import Scan
 
-FORMATS = ("kitti", "ouster", "sim")
+FORMATS = ("kitti", "ouster", "sim", "ouster-pcap", "velodyne-pcap")
+# aliases accepted by --format
+FORMAT_ALIASES = {"pcap": "ouster-pcap"}
 
 
 class Dataset(Protocol):
@@ -57,15 +59,23 @@ def detect_format(path: str | Path) -> str:
             return "ouster"
     elif path.suffix == ".npz":
         return "ouster"
+    elif path.suffix.lower() in (".pcap", ".pcapng"):
+        from data_tools.ouster_pcap import find_metadata
+        from data_tools.velodyne_pcap import looks_like_velodyne
+
+        if looks_like_velodyne(path):
+            return "velodyne-pcap"
+        find_metadata(path)  # a pcap without its json: one-line error naming the file
+        return "ouster-pcap"
     raise DataError(
         f"{path}: unknown input format (expected a simulated sequence with sim.json, a KITTI directory with "
-        "velodyne/, or Ouster .npz)"
+        "velodyne/, Ouster .npz, or an Ouster or Velodyne .pcap)"
     )
 
 
 def open_dataset(path: str | Path, fmt: str | None = None, **options: object) -> Dataset:
     """Open ``path`` as a dataset; ``fmt`` overrides the detected format."""
-    fmt = fmt or detect_format(path)
+    fmt = FORMAT_ALIASES.get(fmt, fmt) if fmt else detect_format(path)
     if fmt == "kitti":
         from data_tools.kitti import KittiSequence
 
@@ -78,4 +88,16 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
         from data_tools.sim.dataset import SimSequence
 
         return SimSequence(path)
+    if fmt == "ouster-pcap":
+        from data_tools.ouster_pcap import OusterPcapSequence
+
+        meta = options.get("meta")
+        return OusterPcapSequence(
+            path, meta=None if meta is None else str(meta), destaggered=bool(options.get("destaggered", False))
+        )
+    if fmt == "velodyne-pcap":
+        from data_tools.velodyne_pcap import VelodynePcapSequence
+
+        model = options.get("model")
+        return VelodynePcapSequence(path, model=None if model is None else str(model))
     raise DataError(f"{path}: unsupported format {fmt!r}; choose from {FORMATS}")

@@ -46,31 +46,85 @@ def read_ouster_npz(path: str | Path, *, destaggered: bool = False, name: str | 
     missing = [k for k in REQUIRED if k not in data]
     if missing:
         raise DataError(f"{path}: missing arrays {missing}")
-    rng = data["range_mm"]
+    return ouster_scan(
+        range_mm=data["range_mm"],
+        column_ts_ns=data["column_ts_ns"],
+        beam_altitude_deg=data["beam_altitude_deg"],
+        beam_azimuth_deg=data["beam_azimuth_deg"],
+        pixel_shift_by_row=data["pixel_shift_by_row"],
+        column_valid=data.get("column_valid"),
+        reflectivity=data.get("reflectivity"),
+        xyz_lidar_m=data.get("xyz_lidar_m"),
+        destaggered=destaggered,
+        name=name or path.stem,
+        source=str(path),
+    )
+
+
+def ouster_scan(
+    *,
+    range_mm: np.ndarray,
+    column_ts_ns: np.ndarray,
+    beam_altitude_deg: np.ndarray,
+    beam_azimuth_deg: np.ndarray,
+    pixel_shift_by_row: np.ndarray,
+    column_valid: np.ndarray | None = None,
+    reflectivity: np.ndarray | None = None,
+    xyz_lidar_m: np.ndarray | None = None,
+    destaggered: bool = False,
+    name: str = "000000",
+    source: str = "<memory>",
+    meta: dict | None = None,
+) -> Scan:
+    """One Ouster sweep in measurement order (the arrays of a decoded ``.npz`` or of an SDK
+    ``LidarFrame``) as a Scan: rows = beams, columns = measurement ids, checked for shape,
+    finiteness and monotonic column times. Shared by the ``.npz`` and the pcap readers, so both
+    build exactly the same Scan from the same sweep.
+
+    Parameters
+    ----------
+    range_mm : (H, W) range in millimetres, 0 = no return
+    column_ts_ns : (W,) column timestamps (ns)
+    beam_altitude_deg, beam_azimuth_deg, pixel_shift_by_row : (H,) beam intrinsics
+    column_valid : (W,) bool, optional; columns not received hold no return
+    reflectivity : (H, W), optional
+    xyz_lidar_m : (H, W, 3), optional Cartesian coordinates in the lidar frame (kept as ``Scan.xyz``)
+    destaggered : shift rows by ``pixel_shift_by_row`` so that columns are azimuths
+    meta : extra entries for ``Scan.meta``
+    """
+    rng = np.asarray(range_mm)
     if rng.ndim != 2:
-        raise DataError(f"{path}: range_mm must be 2-D, got shape {rng.shape}")
+        raise DataError(f"{source}: range_mm must be 2-D, got shape {rng.shape}")
     rows, cols = rng.shape
+    arrays = {
+        "beam_altitude_deg": np.asarray(beam_altitude_deg),
+        "beam_azimuth_deg": np.asarray(beam_azimuth_deg),
+        "pixel_shift_by_row": np.asarray(pixel_shift_by_row),
+        "column_ts_ns": np.asarray(column_ts_ns),
+    }
     for key, shape in (
         ("beam_altitude_deg", (rows,)),
         ("beam_azimuth_deg", (rows,)),
         ("pixel_shift_by_row", (rows,)),
         ("column_ts_ns", (cols,)),
     ):
-        if data[key].shape != shape:
-            raise DataError(f"{path}: {key} has shape {data[key].shape}, expected {shape}")
+        if arrays[key].shape != shape:
+            raise DataError(f"{source}: {key} has shape {arrays[key].shape}, expected {shape}")
     ranges = rng.astype(np.float64) / 1000.0
     if not np.isfinite(ranges).all():
-        raise DataError(f"{path}: non-finite ranges")
-    valid_cols = data.get("column_valid", np.ones(cols, bool)).astype(bool)
+        raise DataError(f"{source}: non-finite ranges")
+    valid_cols = np.ones(cols, bool) if column_valid is None else np.asarray(column_valid).astype(bool)
+    if valid_cols.shape != (cols,):
+        raise DataError(f"{source}: column_valid has shape {valid_cols.shape}, expected {(cols,)}")
     ranges[:, ~valid_cols] = 0.0
-    ts = data["column_ts_ns"].astype(np.float64) * 1e-9
+    ts = arrays["column_ts_ns"].astype(np.float64) * 1e-9
     if (np.diff(ts[valid_cols]) < 0).any():
-        raise DataError(f"{path}: column timestamps are not monotonic")
-    shift = data["pixel_shift_by_row"].astype(np.int64)
-    intensity = data.get("reflectivity", np.zeros((rows, cols))).astype(np.float32)
-    xyz = data.get("xyz_lidar_m")
+        raise DataError(f"{source}: column timestamps are not monotonic")
+    shift = arrays["pixel_shift_by_row"].astype(np.int64)
+    intensity = (np.zeros((rows, cols)) if reflectivity is None else np.asarray(reflectivity)).astype(np.float32)
+    xyz = xyz_lidar_m
     if xyz is not None and xyz.shape != (rows, cols, 3):
-        raise DataError(f"{path}: xyz_lidar_m has shape {xyz.shape}, expected {(rows, cols, 3)}")
+        raise DataError(f"{source}: xyz_lidar_m has shape {xyz.shape}, expected {(rows, cols, 3)}")
     timestamps = np.broadcast_to(ts[None, :], (rows, cols)).copy()
     if destaggered:
         ranges = destagger(ranges, shift)
@@ -79,9 +133,9 @@ def read_ouster_npz(path: str | Path, *, destaggered: bool = False, name: str | 
         xyz = None if xyz is None else destagger(xyz, shift)
     # Ouster: encoder angle 2*pi*(1 - m/W) for measurement id m, beam azimuth offset subtracted.
     sensor = SpinningSensor.create(
-        np.radians(data["beam_altitude_deg"]),
+        np.radians(arrays["beam_altitude_deg"]),
         cols,
-        beam_azimuth=-np.radians(data["beam_azimuth_deg"]),
+        beam_azimuth=-np.radians(arrays["beam_azimuth_deg"]),
         column_shift=-shift.astype(float) if destaggered else None,
         azimuth0=2.0 * np.pi + np.pi / cols,
         direction=-1,
@@ -92,12 +146,12 @@ def read_ouster_npz(path: str | Path, *, destaggered: bool = False, name: str | 
     return Scan(
         ranges=ranges.astype(np.float32),
         sensor=sensor,
-        name=name or path.stem,
-        source=str(path),
+        name=name,
+        source=source,
         intensity=intensity,
         timestamps=timestamps,
         xyz=None if xyz is None else xyz.astype(np.float32),
-        meta={"destaggered": destaggered, "invalid_columns": int((~valid_cols).sum())},
+        meta={"destaggered": destaggered, "invalid_columns": int((~valid_cols).sum()), **(meta or {})},
     )
 
 

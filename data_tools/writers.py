@@ -7,6 +7,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
+from data_tools.clouds import laz_backend
 from data_tools.errors import DataError
 from prc_slam import labels as L
 
@@ -27,7 +28,8 @@ def write_las(
     point_source_id: np.ndarray | None = None,
     gps_time: np.ndarray | None = None,
 ) -> None:
-    """Write a LAS 1.4 file (point format 6) with our codes in ``classification``.
+    """Write a LAS 1.4 file (point format 6) with our codes in ``classification``; LAZ-compressed
+    (lazrs) when ``path`` ends in ``.laz``.
 
     Parameters
     ----------
@@ -61,7 +63,7 @@ def write_las(
     if gps_time is not None:
         las.gps_time = np.asarray(gps_time, dtype=np.float64)
     path.parent.mkdir(parents=True, exist_ok=True)
-    las.write(path)
+    las.write(path, do_compress=path.suffix.lower() == ".laz", laz_backend=laz_backend(path))
 
 
 def write_ply(path: str | Path, xyz: np.ndarray, labels: np.ndarray | None = None) -> None:
@@ -90,7 +92,8 @@ def write_ply(path: str | Path, xyz: np.ndarray, labels: np.ndarray | None = Non
 
 class ClassSplitWriter:
     """Segregation into sub-clouds (paper 004): one combined LAS 1.4 file with every point and
-    one LAS 1.4 file per class present (``<class name>.las``), written chunk by chunk.
+    one LAS 1.4 file per class present (``<class name>.las``), written chunk by chunk. When the
+    combined name ends in ``.laz`` every file is LAZ-compressed (``<class name>.laz``).
 
     Use as a context manager; ``write(xyz, codes)`` may be called any number of times.
     """
@@ -114,12 +117,19 @@ class ClassSplitWriter:
     @property
     def paths(self) -> dict[str, Path]:
         """File per sub-cloud written so far (``"all"`` for the combined one)."""
-        return {k: self.out_dir / (self.combined_name if k == "all" else f"{k}.las") for k in self.counts}
+        return {k: self._path(k) for k in self.counts}
+
+    def _path(self, name: str) -> Path:
+        suffix = ".laz" if self.combined_name.lower().endswith(".laz") else ".las"
+        return self.out_dir / (self.combined_name if name == "all" else f"{name}{suffix}")
 
     def _writer(self, name: str) -> laspy.LasWriter:
         if name not in self._writers:
-            path = self.out_dir / (self.combined_name if name == "all" else f"{name}.las")
-            self._writers[name] = laspy.open(path, mode="w", header=self._header)
+            path = self._path(name)
+            compress = path.suffix.lower() == ".laz"
+            self._writers[name] = laspy.open(
+                path, mode="w", header=self._header, do_compress=compress, laz_backend=laz_backend(path)
+            )
         return self._writers[name]
 
     def write(self, xyz: np.ndarray, codes: np.ndarray) -> None:

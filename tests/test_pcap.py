@@ -1,0 +1,211 @@
+"""Ouster pcap + json (ouster-sdk) and Velodyne pcap (velodyne-decoder) readers.
+
+The Ouster checks run on the real captures in ../shared/data/ouster/pcaps against the decoded
+``.npz`` of the same sweeps; the Velodyne checks on a VLP-16 capture written here packet by packet
+from a known scene, so every decoded point's beam, azimuth and range are known.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from data_tools import DataError, open_dataset
+from data_tools.ouster import read_ouster_npz
+from data_tools.ouster_pcap import OusterPcapSequence, find_metadata
+from prc_slam.config import PRCConfig
+from prc_slam.prc import classify_scan
+
+from .conftest import SHARED_DATA
+
+PCAPS = SHARED_DATA / "ouster" / "pcaps"
+DECODED = SHARED_DATA / "ouster" / "decoded"
+
+
+@pytest.fixture(scope="module")
+def pcap_files() -> list[Path]:
+    files = sorted(PCAPS.glob("*.pcap"))
+    if not files or not sorted(DECODED.glob("*.npz")):
+        pytest.skip(f"Ouster captures not found in {PCAPS} (or decoded sweeps in {DECODED})")
+    return files
+
+
+def decoded_by_frame_id() -> dict[tuple[str, int], Path]:
+    """Decoded sweeps keyed by (sensor prefix, frame id), from names like ``OS-0-128_frame0_id1491.npz``."""
+    out = {}
+    for f in DECODED.glob("*.npz"):
+        m = re.match(r"(OS-\d)-128.*_id(\d+)\.npz$", f.name)
+        assert m, f.name
+        out[(m.group(1), int(m.group(2)))] = f
+    return out
+
+
+def test_every_sweep_decoded_identical_to_npz(pcap_files):
+    """Acceptance: every sweep decoded; xyz vs xyz_lidar_m <= 1 cm (p99); same ranges, times,
+    reflectivity; PRC labels identical to those from the decoded npz."""
+    decoded = decoded_by_frame_id()
+    matched = 0
+    cfg = PRCConfig.preset("multibeam")
+    for pcap in pcap_files:
+        seq = open_dataset(pcap)
+        assert isinstance(seq, OusterPcapSequence)
+        prefix = pcap.name[:4]
+        expected = sorted(fid for (p, fid) in decoded if p == prefix)
+        assert sorted(seq.frame_ids.tolist()) == expected, pcap.name  # every sweep, no extra or missing
+        for i, scan in enumerate(seq):
+            ref = read_ouster_npz(decoded[(prefix, int(seq.frame_ids[i]))])
+            assert scan.meta["missing_columns"] == 0
+            np.testing.assert_array_equal(scan.ranges, ref.ranges)
+            np.testing.assert_array_equal(scan.timestamps, ref.timestamps)
+            np.testing.assert_array_equal(scan.intensity, ref.intensity)
+            valid = ref.ranges > 0
+            err = np.linalg.norm(scan.xyz[valid] - ref.xyz[valid], axis=1)
+            assert np.percentile(err, 99) <= 0.01, pcap.name
+            np.testing.assert_array_equal(classify_scan(scan, cfg), classify_scan(ref, cfg))
+            matched += 1
+    assert matched == len(decoded)
+
+
+def test_frame_times_and_random_access(pcap_files):
+    lb = next((f for f in pcap_files if "lb_n3" in f.name), None)
+    if lb is None:
+        pytest.skip("the 3-sweep OS-1 capture is absent")
+    seq = OusterPcapSequence(lb)
+    assert len(seq) == 3
+    assert seq.times is not None and np.allclose(np.diff(seq.times), 0.1, atol=0.002)  # 10 Hz
+    forward = [seq[i].ranges for i in range(3)]
+    np.testing.assert_array_equal(seq[0].ranges, forward[0])  # going back reopens the capture
+    np.testing.assert_array_equal(seq[-1].ranges, forward[2])
+    assert not np.array_equal(forward[0], forward[1])
+    with pytest.raises(IndexError):
+        seq[3]
+
+
+def test_metadata_found_by_prefix(pcap_files):
+    lb = next((f for f in pcap_files if "lb_n3" in f.name), None)
+    if lb is None:
+        pytest.skip("the 3-sweep OS-1 capture is absent")
+    # OS-1-128_v2.3.0_1024x10_lb_n3.pcap is described by OS-1-128_v2.3.0_1024x10.json
+    assert find_metadata(lb).name == "OS-1-128_v2.3.0_1024x10.json"
+
+
+def test_destaggered_pcap_matches_destaggered_npz(pcap_files):
+    seq = OusterPcapSequence(pcap_files[0], destaggered=True)
+    prefix = pcap_files[0].name[:4]
+    ref = read_ouster_npz(decoded_by_frame_id()[(prefix, int(seq.frame_ids[0]))], destaggered=True)
+    np.testing.assert_array_equal(seq[0].ranges, ref.ranges)
+
+
+def _one_line_error(exc: pytest.ExceptionInfo, path: Path) -> str:
+    msg = str(exc.value)
+    assert "\n" not in msg and str(path) in msg
+    return msg
+
+
+def test_pcap_without_json_is_a_one_line_error(pcap_files, tmp_path):
+    lone = tmp_path / "capture.pcap"
+    lone.symlink_to(pcap_files[0])
+    with pytest.raises(DataError) as exc:
+        open_dataset(lone)
+    assert "capture.json" in _one_line_error(exc, lone)
+    with pytest.raises(DataError) as exc:
+        OusterPcapSequence(lone, meta=tmp_path / "nope.json")
+    assert "nope.json" in _one_line_error(exc, lone)
+
+
+def test_bad_or_foreign_metadata(pcap_files, tmp_path):
+    pcap = tmp_path / "x.pcap"
+    pcap.symlink_to(pcap_files[0])
+    (tmp_path / "x.json").write_text('{"not": "ouster"}')
+    with pytest.raises(DataError, match="cannot use sensor metadata") as exc:
+        OusterPcapSequence(pcap)
+    _one_line_error(exc, pcap)
+    # another sensor's metadata: the packets' init id / serial do not match
+    others = [f for f in PCAPS.glob("*.json") if not pcap_files[0].name.startswith(f.stem)]
+    (tmp_path / "x.json").write_text(others[0].read_text())
+    with pytest.raises(DataError, match="no lidar packets matching") as exc:
+        OusterPcapSequence(pcap)
+    _one_line_error(exc, pcap)
+
+
+def test_truncated_capture_reports_missing_columns(pcap_files, tmp_path, caplog):
+    lb = next((f for f in pcap_files if "lb_n3" in f.name), None)
+    if lb is None:
+        pytest.skip("the 3-sweep OS-1 capture is absent")
+    cut = tmp_path / "cut.pcap"
+    cut.write_bytes(lb.read_bytes()[:1_000_000])  # about 1.6 of the 3 sweeps, cut inside a packet
+    (tmp_path / "cut.json").write_text(find_metadata(lb).read_text())
+    seq = OusterPcapSequence(cut)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
+        scans = list(seq)
+    assert len(scans) == 2
+    assert scans[0].meta["missing_columns"] == 0
+    missing = scans[1].meta["missing_columns"]
+    assert 0 < missing < 1024
+    assert any("columns missing" in r.message for r in caplog.records)
+    # the missing columns hold no return, the received ones the same data as the full capture
+    full = OusterPcapSequence(lb)[1]
+    got = scans[1].ranges.any(axis=0)
+    np.testing.assert_array_equal(scans[1].ranges[:, got], full.ranges[:, got])
+    assert int((~got).sum()) >= missing
+
+
+# --- Velodyne -------------------------------------------------------------------------------
+
+VLP16_ELEVATION = np.array([-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, -1, 15], float)
+FIRING = 55.296e-6  # s between VLP-16 firing sequences
+
+
+def vlp16_stream(n_sweeps: float = 2.3, rpm: float = 600.0, dropout: float = 0.05, seed: int = 0):
+    """Data packets of a simulated VLP-16 in a round room (walls 10-20 m, floor 1.8 m below).
+
+    Returns the payloads, their capture stamps and one row per emitted measurement:
+    (block, firing sequence, laser id, encoded range in m; 0 = no return).
+    """
+    rng = np.random.default_rng(seed)
+    block_dt = 2 * FIRING
+    deg_per_s = rpm / 60.0 * 360.0
+    blocks = int(n_sweeps * 60.0 / rpm / block_dt) // 12 * 12
+    t = np.arange(blocks) * block_dt
+    az_block = (t * deg_per_s + 10.0) % 360.0
+    # every measurement: (block, seq, laser)
+    b, s, k = (a.ravel() for a in np.meshgrid(np.arange(blocks), np.arange(2), np.arange(16), indexing="ij"))
+    az = np.radians(az_block[b] + s * FIRING * deg_per_s)
+    el = np.radians(VLP16_ELEVATION[k])
+    r = (15.0 + 5.0 * np.sin(3.0 * az)) / np.cos(el)
+    floor = np.where(el < 0, 1.8 / np.maximum(-np.sin(el), 1e-9), np.inf)
+    r = np.minimum(r, floor)
+    r[rng.random(r.size) < dropout] = 0.0
+    d = np.round(r / 0.002).astype(np.uint16)
+    rec = np.zeros(blocks * 32, dtype=[("d", "<u2"), ("i", "u1")])
+    rec["d"], rec["i"] = d, 100
+    payloads, stamps = [], []
+    for p0 in range(0, blocks, 12):
+        buf = bytearray()
+        for j in range(p0, p0 + 12):
+            buf += b"\xff\xee" + struct.pack("<H", round(az_block[j] * 100) % 36000)
+            buf += rec[j * 32 : (j + 1) * 32].tobytes()
+        ts_us = int(t[p0] * 1e6)
+        buf += struct.pack("<IBB", ts_us, 0x37, 0x22)  # strongest return, VLP-16
+        payloads.append(bytes(buf))
+        stamps.append(1.0e9 + t[p0])
+    truth = np.column_stack([b, s, k, d * 0.002])
+    return payloads, stamps, truth
+
+
+def write_pcap(path: Path, payloads: list[bytes], stamps: list[float], port: int = 2368) -> Path:
+    """A classic libpcap file: Ethernet / IPv4 / UDP around each payload."""
+    with path.open("wb") as f:
+        f.write(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1))
+        for p, s in zip(payloads, stamps, strict=True):
+            udp = struct.pack(">HHHH", port, port, 8 + len(p), 0) + p
+            src, dst = bytes([192, 168, 1, 201]), bytes([255, 255, 255, 255])
+            ip = struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + len(udp), 0, 0, 64, 17, 0, src, dst) + udp
+            eth = b"\xff" * 6 + b"\x60\x76\x88\x00\x00\x01" + b"\x08\x00" + ip
+            f.write(struct.pack("<IIII", int(s), round(s % 1 * 1e6), len(eth), len(eth)) + eth)
+    return path
