@@ -1,0 +1,896 @@
+"""The organiser: any sweep of points (any order, any spinning sensor) -> a ``Scan`` range image.
+
+PRC (Lehtola et al. 2019, Sec. III) is defined on the raw stream as a range image whose rows
+are scan lines (one beam's sweep for a spinning multi-beam sensor) and whose columns run along
+a line. Readers that only have a point cloud call :class:`Organizer` to rebuild that image,
+with an exact map from every input point to its slot so that labels computed on the image go
+back to every input point, in input order.
+
+Rows (beams) come from, in this order of preference (``method="auto"``):
+
+1. a ring / channel / laser-id field (any numbering; ids are put in rows by their median
+   elevation, top beam first);
+2. the point order, when it is consistent: *ring-major* (one beam's sweep after the other,
+   detected as several azimuth revolutions along the order, either direction) is cut into
+   rings where the azimuth restarts a revolution, the cut refined point by point by elevation;
+   each ring is then matched to a beam by its median elevation, so missing or split rings do
+   not shift the rows; *column-major* (all beams of one firing, then the next: one revolution
+   along the order) takes its rows from the beam elevations (3.);
+3. clustering of elevation angles into the sensor's beams: peaks of a fine elevation
+   histogram. The beam table is estimated once per sequence (first sweep) and reused, so row
+   ``r`` is the same beam in every frame.
+
+Columns come from the azimuth: direction detected from the point order (or the per-point
+times), bin width ``2*pi/cols`` with ``cols`` from the sensor when known, else estimated from
+the median azimuth step between consecutive points of a ring; every row's bin phase is
+estimated too (beams with an azimuth offset, e.g. Ouster's, fall in the middle of their bins).
+
+Every sweep is checked (rings found vs expected, share of points that share a slot, empty
+rows). Out of range -> a warning logged on ``prc_slam.organize`` and counted in
+``Scan.meta["organize"]``; a sweep that cannot be organised -> :class:`DataError` naming the
+source. A collapse is never silent.
+
+No-return input points (NaN/inf coordinates, or exactly at the origin): they keep their entry
+in the input order, are counted (``nonfinite_points``), never reach PRC, and are represented
+in the Scan as a zero row of ``Scan.cloud`` mapped to an empty slot (range 0), so
+``Scan.per_point`` gives them label 0 (no_return) and ``Scan.points()`` stays finite.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from data_tools.errors import DataError
+from prc_slam.scan import Scan, SpinningSensor
+
+log = logging.getLogger("prc_slam.organize")
+
+METHODS = ("auto", "ring", "order", "beams")
+TWO_PI = 2.0 * np.pi
+
+#: share of points sharing a slot above which a sweep is reported (warning) / refused (error)
+WARN_COLLISIONS = 0.12
+MAX_COLLISIONS = 0.5
+#: beams method: share of points within a quarter beam gap of their beam below which the
+#: elevations show no beam structure (uniform elevations give ~0.5)
+MIN_BEAM_CONCENTRATION = 0.65
+
+
+@dataclass
+class OrganizeReport:
+    """Plausibility figures of one organised sweep (``Scan.meta["organize"]``)."""
+
+    method: str
+    rings: int
+    expected_rings: int | None
+    cols: int
+    collisions_pct: float
+    empty_rows: int
+    nonfinite_points: int
+    warnings: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "method": self.method,
+            "rings": int(self.rings),
+            "expected_rings": None if self.expected_rings is None else int(self.expected_rings),
+            "cols": int(self.cols),
+            "collisions_pct": float(self.collisions_pct),
+            "empty_rows": int(self.empty_rows),
+            "nonfinite_points": int(self.nonfinite_points),
+            "warnings": list(self.warnings),
+        }
+
+
+# ----------------------------------------------------------------------------- numba kernels
+
+
+@njit(cache=True, nogil=True)
+def _polar(xyz):
+    """Per point: has a return, range, azimuth (rad, (-pi, pi]), tangent of the elevation."""
+    n = xyz.shape[0]
+    ok = np.empty(n, np.bool_)
+    rng = np.zeros(n, np.float32)
+    az = np.zeros(n, np.float64)
+    te = np.zeros(n, np.float64)
+    for i in range(n):
+        x = float(xyz[i, 0])
+        y = float(xyz[i, 1])
+        z = float(xyz[i, 2])
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            ok[i] = False
+            continue
+        rho2 = x * x + y * y
+        r2 = rho2 + z * z
+        if r2 <= 0.0:
+            ok[i] = False
+            continue
+        ok[i] = True
+        rho = math.sqrt(rho2)
+        rng[i] = math.sqrt(r2)
+        az[i] = math.atan2(y, x)
+        te[i] = z / rho if rho > 0 else (1e6 if z > 0 else -1e6)
+    return ok, rng, az, te
+
+
+@njit(cache=True, nogil=True)
+def _wrap(a):
+    while a > np.pi:
+        a -= 2.0 * np.pi
+    while a <= -np.pi:
+        a += 2.0 * np.pi
+    return a
+
+
+@njit(cache=True, nogil=True)
+def _order_stats(az, ok, small):
+    """Along the input order: share of azimuth steps smaller than ``small`` and the signed sum
+    of those steps (revolutions * 2 pi)."""
+    n = az.shape[0]
+    prev = -1
+    steps = 0
+    n_small = 0
+    total = 0.0
+    for i in range(n):
+        if not ok[i]:
+            continue
+        if prev >= 0:
+            d = _wrap(az[i] - az[prev])
+            steps += 1
+            if abs(d) < small:
+                n_small += 1
+                total += d
+        prev = i
+    return n_small / max(steps, 1), total
+
+
+@njit(cache=True, nogil=True)
+def _ring_runs(az, ok, s, jitter, over):
+    """Cut a ring-major sequence into runs (candidate rings) where the azimuth restarts.
+
+    Walking the points in input order, each ring's progress ``P`` (azimuth travelled in
+    direction ``s`` since the ring's first point) grows to about 2 pi. A step of ``f``
+    (forward, in ``[0, 2 pi)``; backward steps smaller than ``jitter`` count as negative)
+    starts a new run when ``P + f`` exceeds ``2 pi - over``: the point has come back to where
+    the ring began. Returns the run id of every point (-1 for no-return points)."""
+    n = az.shape[0]
+    run = np.full(n, -1, np.int64)
+    cur = -1
+    prog = 0.0
+    prev = -1
+    for i in range(n):
+        if not ok[i]:
+            continue
+        if prev < 0:
+            cur = 0
+            prog = 0.0
+        else:
+            f = s * (az[i] - az[prev])
+            f = f - 2.0 * np.pi * math.floor(f / (2.0 * np.pi))  # [0, 2 pi)
+            if f > 2.0 * np.pi - jitter:
+                f -= 2.0 * np.pi
+            if prog + f > 2.0 * np.pi - over:
+                cur += 1
+                prog = 0.0
+            else:
+                prog += f
+                if prog < 0.0:
+                    prog = 0.0
+        run[i] = cur
+        prev = i
+    return run
+
+
+@njit(cache=True, nogil=True)
+def _run_bounds(run, n_runs):
+    """First and one-past-last input index of each run (runs are contiguous in the order)."""
+    lo = np.full(n_runs, -1, np.int64)
+    hi = np.full(n_runs, -1, np.int64)
+    for i in range(run.shape[0]):
+        k = run[i]
+        if k < 0:
+            continue
+        if lo[k] < 0:
+            lo[k] = i
+        hi[k] = i + 1
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
+def _run_medians(te, ok, lo, hi):
+    """Median tangent-of-elevation of each run and its number of points."""
+    m = lo.shape[0]
+    med = np.full(m, np.nan)
+    cnt = np.zeros(m, np.int64)
+    for k in range(m):
+        if lo[k] < 0:
+            continue
+        buf = np.empty(hi[k] - lo[k])
+        c = 0
+        for i in range(lo[k], hi[k]):
+            if ok[i]:
+                buf[c] = te[i]
+                c += 1
+        cnt[k] = c
+        if c:
+            med[k] = np.median(buf[:c])
+    return med, cnt
+
+
+@njit(cache=True, nogil=True)
+def _refine_cuts(te, ok, run, lo, hi, row_of_run, beam_te, window):
+    """Move every cut between consecutive runs that belong to different beams to the point
+    that best separates the two beams' elevations within ``window`` points either side
+    (each point counts for the beam whose elevation it is nearer). Returns the row of
+    every point (-1 for no-return points)."""
+    n = te.shape[0]
+    row = np.full(n, -1, np.int64)
+    for i in range(n):
+        if ok[i]:
+            row[i] = row_of_run[run[i]]
+    m = lo.shape[0]
+    for k in range(m - 1):
+        if lo[k] < 0 or lo[k + 1] < 0:
+            continue
+        ra = row_of_run[k]
+        rb = row_of_run[k + 1]
+        if ra == rb:
+            continue
+        ta = beam_te[ra]
+        tb = beam_te[rb]
+        a = max(lo[k], lo[k + 1] - window)
+        b = min(hi[k + 1], lo[k + 1] + window)
+        # score(j) = #(i < j nearer a) + #(i >= j nearer b); start with j = a
+        score = 0
+        for i in range(a, b):
+            if ok[i] and abs(te[i] - tb) <= abs(te[i] - ta):
+                score += 1
+        best = score
+        best_j = a
+        for j in range(a, b):
+            if ok[j]:
+                if abs(te[j] - tb) <= abs(te[j] - ta):
+                    score -= 1
+                else:
+                    score += 1
+            if score > best or (score == best and abs(j + 1 - lo[k + 1]) < abs(best_j - lo[k + 1])):
+                best = score
+                best_j = j + 1
+        for i in range(a, b):
+            if ok[i]:
+                row[i] = ra if i < best_j else rb
+    return row
+
+
+@njit(cache=True, nogil=True)
+def _nearest_beam(te, ok, bounds):
+    """Row of each point: the beam whose elevation interval (between mid-points, in tangent
+    space, ``bounds`` descending) holds the point. -1 for no-return points."""
+    n = te.shape[0]
+    row = np.full(n, -1, np.int64)
+    nb = bounds.shape[0] + 1
+    for i in range(n):
+        if not ok[i]:
+            continue
+        t = te[i]
+        lo = 0
+        hi = nb - 1
+        while lo < hi:  # first row whose lower bound is below t
+            mid = (lo + hi) // 2
+            if t > bounds[mid]:
+                hi = mid
+            else:
+                lo = mid + 1
+        row[i] = lo
+    return row
+
+
+@njit(cache=True, nogil=True)
+def _row_steps(az, row, rows, max_step):
+    """Azimuth steps between consecutive points of the same row (input order), in (0, max_step)."""
+    n = az.shape[0]
+    last = np.full(rows, -1, np.int64)
+    out = np.empty(n)
+    c = 0
+    for i in range(n):
+        r = row[i]
+        if r < 0:
+            continue
+        j = last[r]
+        if j >= 0:
+            d = abs(_wrap(az[i] - az[j]))
+            if d > 1e-7 and d < max_step:
+                out[c] = d
+                c += 1
+        last[r] = i
+    return out[:c]
+
+
+@njit(cache=True, nogil=True)
+def _row_phase(az, row, rows, a0, s, inv_step):
+    """Circular mean (over each row's points) of the fractional column position, and the
+    mean resultant length (1 = every point at the same phase)."""
+    sx = np.zeros(rows)
+    sy = np.zeros(rows)
+    cnt = np.zeros(rows)
+    for i in range(az.shape[0]):
+        r = row[i]
+        if r < 0:
+            continue
+        u = s * (az[i] - a0) * inv_step
+        f = u - math.floor(u)
+        sx[r] += math.cos(2.0 * np.pi * f)
+        sy[r] += math.sin(2.0 * np.pi * f)
+        cnt[r] += 1
+    phase = np.zeros(rows)
+    strength = np.zeros(rows)
+    for r in range(rows):
+        if cnt[r] > 0:
+            p = math.atan2(sy[r], sx[r]) / (2.0 * np.pi)
+            phase[r] = p - math.floor(p)
+            strength[r] = math.sqrt(sx[r] ** 2 + sy[r] ** 2) / cnt[r]
+    return phase, strength
+
+
+@njit(cache=True, nogil=True)
+def _scatter(az, rng, row, a0, s, inv_step, phase, rows, cols):
+    """Slot of every point and the nearest point (representative) of every slot.
+
+    Returns ``point_slot`` (-1 for no-return points), ``representative`` (-1 for empty
+    slots), points per row, and the number of points sharing a slot with a nearer one."""
+    n = az.shape[0]
+    slot = np.full(n, -1, np.int64)
+    rep = np.full(rows * cols, -1, np.int64)
+    per_row = np.zeros(rows, np.int64)
+    collisions = 0
+    for i in range(n):
+        r = row[i]
+        if r < 0:
+            continue
+        u = s * (az[i] - a0) * inv_step - phase[r] + 0.5
+        c = int(math.floor(u)) % cols
+        k = r * cols + c
+        slot[i] = k
+        per_row[r] += 1
+        j = rep[k]
+        if j < 0:
+            rep[k] = i
+        else:
+            collisions += 1
+            if rng[i] < rng[j]:
+                rep[k] = i
+    return slot, rep, per_row, collisions
+
+
+# ----------------------------------------------------------------------------- beam tables
+
+
+def _beam_bounds(beam_te: np.ndarray) -> np.ndarray:
+    """Interval bounds (tangent space, descending) between consecutive beams (sorted top first),
+    at the mid-angle between them."""
+    ang = np.arctan(beam_te)
+    return np.tan(0.5 * (ang[:-1] + ang[1:]))
+
+
+def estimate_beams(
+    te: np.ndarray, rng: np.ndarray, expected: int | None = None, resolution_deg: float = 0.02
+) -> tuple[np.ndarray, float]:
+    """Beam elevations (as tangents, top beam first) from the peaks of an elevation histogram.
+
+    Points nearer than the 20th range percentile (at most 3 m) are left out, since beam origin
+    offsets bend their elevation. Returns the table and its *concentration*: the share of
+    points within a quarter of the local beam gap of their beam (near 1 for a multi-beam
+    sensor, about 0.5 for elevations without beam structure).
+    """
+    el = np.degrees(np.arctan(te))
+    near = min(3.0, float(np.percentile(rng, 20))) if len(rng) else 0.0
+    use = el[rng >= near] if (rng >= near).sum() > 0.5 * len(rng) else el
+    nb = int(round(180.0 / resolution_deg))
+    hist, edges = np.histogram(use, bins=nb, range=(-90.0, 90.0))
+    kernel = np.array([1.0, 2.0, 3.0, 2.0, 1.0]) / 9.0
+    h = np.convolve(hist.astype(np.float64), kernel, mode="same")
+    w = 3  # a peak is the maximum of +-3 bins (0.06 deg): beams closer than that are one beam
+    pad = np.pad(h, w, constant_values=-1.0)
+    win = np.lib.stride_tricks.sliding_window_view(pad, 2 * w + 1)
+    is_peak = (h > 0) & (h >= win.max(axis=1))
+    # of a flat top keep the first bin only
+    is_peak[1:] &= ~(is_peak[:-1] & (h[1:] == h[:-1]))
+    idx = np.flatnonzero(is_peak)
+    if len(idx) == 0:
+        return np.zeros(0), 0.0
+    height = h[idx]
+    top = np.sort(height)[::-1][: max(1, expected or 16)]
+    keep = height >= max(0.5, 0.05 * float(np.median(top)))
+    idx = idx[keep]
+    if expected is not None and len(idx) > expected:
+        idx = np.sort(idx[np.argsort(h[idx])[::-1][:expected]])
+    centres = 0.5 * (edges[idx] + edges[idx + 1])
+    # refine each peak to the mean elevation of the points within +-2 bins
+    beams = np.sort(centres)[::-1]
+    beam_te = np.tan(np.radians(beams))
+    conc = beam_concentration(te, beam_te)
+    return beam_te, conc
+
+
+def beam_concentration(te: np.ndarray, beam_te: np.ndarray) -> float:
+    """Share of points within a quarter of the local beam gap (in angle) of their nearest beam."""
+    if len(beam_te) < 2 or len(te) == 0:
+        return 1.0 if len(beam_te) == 1 else 0.0
+    ang = np.arctan(beam_te)  # descending
+    el = np.arctan(te)
+    bounds = _beam_bounds(beam_te)
+    row = _nearest_beam(te, np.ones(len(te), bool), bounds)
+    gaps = np.abs(np.diff(ang))
+    local = np.empty(len(ang))
+    local[0], local[-1] = gaps[0], gaps[-1]
+    local[1:-1] = np.minimum(gaps[:-1], gaps[1:])
+    inside = np.abs(el - ang[row]) <= 0.25 * local[row]
+    return float(inside.mean())
+
+
+# ----------------------------------------------------------------------------- the organiser
+
+
+class Organizer:
+    """Organises the sweeps of one sequence into range images (one instance per sequence).
+
+    Parameters
+    ----------
+    rows, cols : int, optional
+        Beams and columns of the sensor when known; otherwise estimated on the first sweep
+        (rows: beams found; cols: from the median azimuth step along a ring) and kept.
+    altitude : array, optional
+        Beam elevations (rad) when known; sets ``rows`` and the beam table.
+    method : {"auto", "ring", "order", "beams"}
+        ``auto`` uses a ring field when given, else the point order when it is consistent,
+        else elevation clustering. The others force one way (``ring`` needs the field).
+    source_name : str
+        Name of the sequence, for messages.
+    sweep_period : float
+        Duration of one sweep (s), for per-column times when no per-point times are given.
+    time_follows_order : bool
+        Whether the input order is the firing order (so column 0 is fired first). False for
+        sources whose order runs against time (e.g. KITTI's bins; give ``times`` then).
+    """
+
+    def __init__(
+        self,
+        rows: int | None = None,
+        cols: int | None = None,
+        altitude: np.ndarray | None = None,
+        method: str = "auto",
+        source_name: str = "seq",
+        sweep_period: float = 0.1,
+        time_follows_order: bool = True,
+    ) -> None:
+        if method not in METHODS:
+            raise ValueError(f"organiser method {method!r}; choose from {METHODS}")
+        self.method = method
+        self.source_name = source_name
+        self.sweep_period = float(sweep_period)
+        self.time_follows_order = time_follows_order
+        self.expected_rows = int(rows) if rows is not None else None
+        self.cols = int(cols) if cols is not None else None
+        self.beam_te: np.ndarray | None = None
+        if altitude is not None:
+            alt = np.asarray(altitude, dtype=np.float64)
+            if alt.ndim != 1 or len(alt) == 0 or not np.isfinite(alt).all():
+                raise ValueError("altitude must be a non-empty 1-D array of finite angles (rad)")
+            self.beam_te = np.sort(np.tan(alt))[::-1]
+            self.expected_rows = len(alt)
+        self.ring_ids: np.ndarray | None = None  # ring field values, in row order
+        self.direction: int | None = None
+        self.a0: float | None = None
+        self.phase: np.ndarray | None = None
+        self._order_direction: int | None = None
+        self.frames = 0
+        self.warnings_total = 0
+
+    # ------------------------------------------------------------------ public API
+    def scan(
+        self,
+        xyz: np.ndarray,
+        ring: np.ndarray | None = None,
+        times: np.ndarray | None = None,
+        intensity: np.ndarray | None = None,
+        name: str = "000000",
+        source: str = "<memory>",
+        frame_time: float | None = None,
+        gt_point_labels: np.ndarray | None = None,
+        gt_point_instance: np.ndarray | None = None,
+        gt_pose: np.ndarray | None = None,
+    ) -> Scan:
+        """Organise one sweep of points (input order) into a Scan with an exact slot map."""
+        xyz = np.asarray(xyz)
+        if xyz.ndim != 2 or xyz.shape[1] < 3:
+            raise DataError(f"{source}: points must be an (N, 3) array, got shape {xyz.shape}")
+        xyz = xyz[:, :3]
+        n = len(xyz)
+        for nm, arr in (
+            ("ring", ring),
+            ("times", times),
+            ("intensity", intensity),
+            ("gt_point_labels", gt_point_labels),
+            ("gt_point_instance", gt_point_instance),
+        ):
+            if arr is not None and np.shape(arr) != (n,):
+                raise DataError(f"{source}: {nm} has shape {np.shape(arr)} for {n} points")
+        ok, rng, az, te = _polar(np.ascontiguousarray(xyz))
+        n_ok = int(ok.sum())
+        if n_ok == 0:
+            raise DataError(f"{source}: no point with a return ({n} points, all NaN/inf or at the origin)")
+        warnings: list[str] = []
+        if times is not None:
+            times = np.asarray(times, dtype=np.float64)
+            if not np.isfinite(times[ok]).all():
+                raise DataError(f"{source}: non-finite per-point times")
+
+        method, row, rows = self._rows(xyz, ok, rng, az, te, ring, times, source, warnings)
+        s, a0 = self._direction(az, ok, row, times, method, source)
+        cols = self._columns(az, ok, row, rows, times, source)
+        inv_step = cols / TWO_PI
+        if self.phase is None or len(self.phase) != rows:
+            phase, strength = _row_phase(az, row, rows, a0, s, inv_step)
+            self.phase = np.where(strength > 0.3, phase, 0.5)
+        slot, rep, per_row, collisions = _scatter(az, rng, row, a0, s, inv_step, self.phase, rows, cols)
+        report = self._check(method, rows, cols, per_row, collisions, n_ok, n - n_ok, source, warnings)
+        return self._build(
+            xyz, ok, rng, te, slot, rep, rows, cols, s, a0, times, intensity, name, source, frame_time,
+            gt_point_labels, gt_point_instance, gt_pose, report, collisions,
+        )  # fmt: skip
+
+    def scan_organized(
+        self,
+        grid_xyz: np.ndarray,
+        times: np.ndarray | None = None,
+        intensity: np.ndarray | None = None,
+        name: str = "000000",
+        source: str = "<memory>",
+        frame_time: float | None = None,
+    ) -> Scan:
+        """A sweep already organised as ``(H, W, 3)`` (rows = beams, e.g. the Ouster ROS driver).
+
+        Zeros or NaN are no returns. Rows are put top beam first (by their median elevation);
+        the slot map is the identity up to that row order; the sensor model (beam elevations,
+        azimuth direction, per-row azimuth offsets) is estimated from the grid.
+        """
+        g = np.asarray(grid_xyz)
+        if g.ndim != 3 or g.shape[2] < 3 or g.shape[0] < 1 or g.shape[1] < 2:
+            raise DataError(f"{source}: an organised cloud must be (H, W, 3), got shape {g.shape}")
+        H, W = g.shape[:2]
+        flat = np.ascontiguousarray(g[..., :3].reshape(-1, 3))
+        ok, rng, az, te = _polar(flat)
+        if not ok.any():
+            raise DataError(f"{source}: no point with a return in the {H} x {W} organised cloud")
+        warnings: list[str] = []
+        okg = ok.reshape(H, W)
+        teg = np.where(okg, te.reshape(H, W), np.nan)
+        with np.errstate(all="ignore"):
+            med = np.array([np.nanmedian(r) if np.isfinite(r).any() else np.nan for r in teg])
+        known = np.isfinite(med)
+        empty_rows = int((~known).sum())
+        if known.sum() >= 2:
+            med = np.interp(np.arange(H), np.flatnonzero(known), med[known])
+        else:
+            med = np.where(known, med, med[known][0] if known.any() else 0.0)
+        order = np.argsort(-med, kind="stable")  # top beam first
+        inv = np.empty(H, np.int64)
+        inv[order] = np.arange(H)
+        if not np.array_equal(order, np.arange(H)) and not np.array_equal(order, np.arange(H)[::-1]):
+            msg = f"{source}: rows of the organised cloud are not ordered by elevation; reordered top beam first"
+            warnings.append(msg)
+        row = np.repeat(inv, W)
+        row[~ok] = -1
+        # azimuth direction along the columns
+        dg = np.where(okg[:, 1:] & okg[:, :-1], np.angle(np.exp(1j * np.diff(az.reshape(H, W), axis=1))), np.nan)
+        s = 1 if np.nansum(np.sign(dg)) >= 0 else -1
+        cols = W
+        col = np.tile(np.arange(W), H)
+        c_az = s * TWO_PI * (col + 0.5) / W
+        a0 = float(np.angle(np.exp(1j * (az[ok] - c_az[ok])).mean()))
+        offs = np.zeros(H)
+        resid = np.where(ok, np.angle(np.exp(1j * (az - c_az - a0))), np.nan).reshape(H, W)
+        with np.errstate(all="ignore"):
+            offs_raw = np.nanmedian(resid, axis=1)
+        offs[inv] = np.nan_to_num(offs_raw)
+        slot = row * W + col
+        slot[~ok] = -1
+        rep = np.full(H * W, -1, np.int64)
+        rep[slot[ok]] = np.flatnonzero(ok)
+        per_row = np.bincount(row[ok], minlength=H)
+        self.expected_rows = self.expected_rows or H
+        report = self._check("organized", H, W, per_row, 0, int(ok.sum()), int((~ok).sum()), source, warnings)
+        report.empty_rows = max(report.empty_rows, empty_rows)
+        sensor = SpinningSensor.create(
+            np.arctan(med[order]), W, beam_azimuth=offs, azimuth0=a0, direction=s, sweep_period=self.sweep_period
+        )
+        t = None
+        if times is not None:
+            t = np.asarray(times, dtype=np.float64)
+            if t.shape == (H, W):
+                t = t[order]
+            elif t.shape != (W,):
+                raise DataError(f"{source}: times of shape {t.shape} for a {H} x {W} cloud")
+        inten = None
+        if intensity is not None:
+            inten = np.asarray(intensity, dtype=np.float32)
+            if inten.shape != (H, W):
+                raise DataError(f"{source}: intensity of shape {inten.shape} for a {H} x {W} cloud")
+            inten = inten[order]
+        return self._finish(
+            flat, ok, rng, slot, rep, H, cols, sensor, t, inten, name, source, frame_time, None, None, None, report, 0,
+            slot_times_given=t is not None,
+        )  # fmt: skip
+
+    # ------------------------------------------------------------------ rows
+    def _rows(self, xyz, ok, rng, az, te, ring, times, source, warnings):
+        method = self.method
+        if ring is not None and method in ("auto", "ring"):
+            row, rows = self._rows_from_field(np.asarray(ring), ok, te, source, warnings)
+            return "ring-field", row, rows
+        if method == "ring":
+            raise DataError(f"{source}: organiser method 'ring' but the source has no ring field")
+        layout = "unordered"
+        if method in ("auto", "order"):
+            frac, total = _order_stats(az, ok, np.radians(10.0))
+            revs = abs(total) / TWO_PI
+            if frac > 0.8 and revs >= 1.5:
+                layout = "ring-major"
+            elif frac > 0.8:
+                layout = "column-major"
+            elif method == "order":
+                raise DataError(
+                    f"{source}: the point order is not consistent (only {100 * frac:.0f}% of consecutive points "
+                    "are neighbours in azimuth); use method 'beams' or 'auto'"
+                )
+            self._order_direction = 1 if total >= 0 else -1
+        if layout == "ring-major":
+            row, rows = self._rows_ring_major(ok, rng, az, te, source, warnings)
+            return "ring-major", row, rows
+        row, rows = self._rows_from_beams(ok, rng, te, source, warnings)
+        return ("column-major" if layout == "column-major" else "beams"), row, rows
+
+    def _rows_from_field(self, ring, ok, te, source, warnings):
+        if not np.issubdtype(ring.dtype, np.integer):
+            if not np.isfinite(ring[ok]).all() or (ring[ok] != np.round(ring[ok])).any():
+                raise DataError(f"{source}: the ring field holds non-integer values")
+            ring = ring.astype(np.int64)
+        ids, inv = np.unique(ring[ok], return_inverse=True)
+        if self.ring_ids is None or not np.isin(ids, self.ring_ids).all():
+            med = np.array([np.median(te[ok][inv == k]) for k in range(len(ids))])  # once per sequence
+            if self.ring_ids is not None:
+                new = ~np.isin(ids, self.ring_ids)
+                warnings.append(f"{source}: ring ids {ids[new].tolist()[:8]} not seen before; beam table rebuilt")
+            self.ring_ids = ids[np.argsort(-med, kind="stable")]
+            self.beam_te = np.sort(med)[::-1]
+            if self.expected_rows is None:
+                self.expected_rows = len(ids)
+        lut_ids = self.ring_ids
+        order = np.argsort(lut_ids)
+        pos = np.searchsorted(lut_ids[order], ring[ok])
+        row = np.full(len(ok), -1, np.int64)
+        row[ok] = order[pos]
+        return row, len(lut_ids)
+
+    def _rows_ring_major(self, ok, rng, az, te, source, warnings):
+        s = self._order_direction
+        step_guess = TWO_PI / self.cols if self.cols else np.radians(0.1)
+        run = _ring_runs(az, ok, float(s), np.radians(15.0), 0.5 * step_guess)
+        n_runs = int(run.max()) + 1
+        lo, hi = _run_bounds(run, n_runs)
+        med, cnt = _run_medians(te, ok, lo, hi)
+        if self.beam_te is None:
+            self.beam_te = self._beams_from_runs(med, cnt)
+        bounds = _beam_bounds(self.beam_te)
+        row_of_run = _nearest_beam(med, cnt > 0, bounds)
+        window = int(max(16, np.radians(15.0) / step_guess))
+        row = _refine_cuts(te, ok, run, lo, hi, row_of_run, self.beam_te, window)
+        return row, len(self.beam_te)
+
+    def _beams_from_runs(self, med, cnt):
+        """Beam table from the rings of a ring-major sweep: run medians, runs of one beam merged."""
+        good = cnt >= max(8, 0.01 * cnt.max())
+        m = np.sort(med[good])[::-1]
+        if len(m) == 0:
+            m = np.sort(med[cnt > 0])[::-1]
+        ang = np.arctan(m)
+        gaps = -np.diff(ang)
+        tol = 0.25 * float(np.median(gaps[gaps > np.radians(0.02)])) if (gaps > np.radians(0.02)).any() else 0.0
+        groups = np.concatenate([[0], np.cumsum(gaps > max(tol, np.radians(0.02)))])
+        beams = np.array([np.mean(ang[groups == g]) for g in range(groups[-1] + 1)])
+        if self.expected_rows is not None and len(beams) != self.expected_rows:
+            pass  # reported by the plausibility check
+        return np.tan(beams)
+
+    def _rows_from_beams(self, ok, rng, te, source, warnings):
+        if self.beam_te is None:
+            beam_te, conc = estimate_beams(te[ok], rng[ok], self.expected_rows)
+            if len(beam_te) == 0:
+                raise DataError(f"{source}: cannot organise: no beam structure in the elevations")
+            if conc < MIN_BEAM_CONCENTRATION and len(beam_te) > 1:
+                raise DataError(
+                    f"{source}: cannot organise: the point elevations show no beam structure "
+                    f"(only {100 * conc:.0f}% of points near one of {len(beam_te)} elevation peaks) and the "
+                    "points carry no ring field and no consistent order"
+                )
+            self.beam_te = beam_te
+        row = _nearest_beam(te, ok, _beam_bounds(self.beam_te))
+        return row, len(self.beam_te)
+
+    # ------------------------------------------------------------------ columns
+    def _direction(self, az, ok, row, times, method, source):
+        if self.direction is None:
+            s = 1
+            if times is not None:
+                # the azimuth's direction of travel in time, from time-sorted points of each row
+                idx = np.flatnonzero(ok)
+                sub = idx[np.argsort(times[idx], kind="stable")]
+                d = np.angle(np.exp(1j * np.diff(az[sub])))
+                same = row[sub][1:] == row[sub][:-1]
+                d = d[same & (np.abs(d) < np.radians(10.0))]
+                s = 1 if d.sum() >= 0 else -1
+            elif (
+                self._order_direction is not None and method != "ring-field" or method in ("ring-major", "column-major")
+            ):
+                s = self._order_direction or 1
+                if not self.time_follows_order:
+                    s = -s
+            self.direction = s
+        if self.a0 is None:
+            first = int(np.argmax(ok))
+            if times is not None:
+                idx = np.flatnonzero(ok)
+                first = int(idx[np.argmin(times[idx])])
+            elif not self.time_follows_order:
+                first = int(np.flatnonzero(ok)[-1])
+            self.a0 = float(az[first])
+        return self.direction, self.a0
+
+    def _columns(self, az, ok, row, rows, times, source):
+        if self.cols is not None:
+            return self.cols
+        steps = _row_steps(az, row, rows, np.radians(5.0))
+        ordered = len(steps) > 0.5 * ok.sum()
+        if not ordered:
+            # unordered input: sort the azimuths of the most populated rows
+            counts = np.bincount(row[row >= 0], minlength=rows)
+            parts = []
+            for r in np.argsort(counts)[::-1][: min(8, rows)]:
+                a = np.sort(az[row == r])
+                d = np.diff(a)
+                parts.append(d[(d > 1e-7) & (d < np.radians(5.0))])
+            steps = np.concatenate(parts) if parts else steps
+        if len(steps) < 10:
+            raise DataError(f"{source}: cannot estimate the column count (too few points along the rings)")
+        step = float(np.median(steps))
+        self.cols = max(1, int(round(TWO_PI / step)))
+        return self.cols
+
+    # ------------------------------------------------------------------ checks and the Scan
+    def _check(self, method, rows, cols, per_row, collisions, n_ok, n_bad, source, warnings) -> OrganizeReport:
+        found = int((per_row > 0).sum())
+        empty = int(rows - found)
+        coll = collisions / max(n_ok, 1)
+        expected = self.expected_rows
+        if n_ok > 4 * cols and coll > MAX_COLLISIONS:
+            raise DataError(
+                f"{source}: cannot organise: {100 * coll:.0f}% of the points share a range-image slot "
+                f"({found} rings found, {cols} columns, method {method})"
+            )
+        if found == 1 and n_ok > 4 * cols:
+            raise DataError(f"{source}: cannot organise: all {n_ok} points fell in one ring ({method})")
+        if coll > WARN_COLLISIONS:
+            warnings.append(
+                f"{source}: {100 * coll:.1f}% of the points share a range-image slot "
+                f"(method {method}, {found} rings, {cols} columns)"
+            )
+        if expected is not None and found < 0.75 * expected:
+            warnings.append(f"{source}: {found} rings found, the sensor has {expected}")
+        if expected is not None and rows > expected:
+            warnings.append(f"{source}: {rows} beams found, the sensor has {expected}")
+        if rows and empty > 0.25 * rows:
+            warnings.append(f"{source}: {empty} of {rows} rows hold no point")
+        for w in warnings:
+            log.warning(w)
+        self.warnings_total += len(warnings)
+        self.frames += 1
+        return OrganizeReport(method, found, expected, cols, 100.0 * coll, empty, n_bad, warnings)
+
+    def _build(
+        self, xyz, ok, rng, te, slot, rep, rows, cols, s, a0, times, intensity, name, source, frame_time,
+        gt_point_labels, gt_point_instance, gt_pose, report, collisions,
+    ):  # fmt: skip
+        sensor = SpinningSensor.create(
+            np.arctan(self.beam_te) if self.beam_te is not None and len(self.beam_te) == rows else np.zeros(rows),
+            cols,
+            beam_azimuth=s * (TWO_PI / cols) * (self.phase - 0.5),
+            azimuth0=a0,
+            direction=s,
+            sweep_period=self.sweep_period,
+        )
+        inten = None
+        if intensity is not None:
+            inten = np.zeros(rows * cols, np.float32)
+            has = rep >= 0
+            inten[has] = np.asarray(intensity, dtype=np.float32)[rep[has]]
+            inten = inten.reshape(rows, cols)
+        t = None
+        if times is not None:
+            t = self._slot_times(times, rep, rows, cols)
+        scan = self._finish(
+            xyz, ok, rng, slot, rep, rows, cols, sensor, t, inten, name, source, frame_time,
+            gt_point_labels, gt_point_instance, gt_pose, report, collisions, slot_times_given=times is not None,
+        )  # fmt: skip
+        return scan
+
+    def _slot_times(self, times, rep, rows, cols):
+        """Per-slot times: the representative's; empty slots take their column's median time
+        (columns without any point interpolated)."""
+        has = rep >= 0
+        t = np.full(rows * cols, np.nan)
+        t[has] = times[rep[has]]
+        tg = t.reshape(rows, cols)
+        with np.errstate(all="ignore"):
+            col_t = np.nanmedian(tg, axis=0) if has.any() else np.zeros(cols)
+        known = np.isfinite(col_t)
+        if not known.all():
+            col_t = np.interp(np.arange(cols), np.flatnonzero(known), col_t[known]) if known.any() else np.zeros(cols)
+        return np.where(np.isfinite(tg), tg, col_t[None, :])
+
+    def _finish(
+        self, xyz, ok, rng, slot, rep, rows, cols, sensor, t, inten, name, source, frame_time,
+        gt_point_labels, gt_point_instance, gt_pose, report, collisions, slot_times_given,
+    ):  # fmt: skip
+        n = len(ok)
+        has = rep >= 0
+        ranges = np.zeros(rows * cols, np.float32)
+        ranges[has] = rng[rep[has]]
+        slot_xyz = np.zeros((rows * cols, 3), np.float32)
+        slot_xyz[has] = xyz[rep[has]]
+        cloud = np.asarray(xyz, dtype=np.float32).copy() if xyz.dtype != np.float32 else np.array(xyz, copy=True)
+        point_slot = slot
+        if not ok.all():
+            empty = np.flatnonzero(~has)
+            if len(empty) == 0:
+                raise DataError(
+                    f"{source}: {int((~ok).sum())} no-return points but the range image has no empty slot to hold them"
+                )
+            cloud[~ok] = 0.0
+            point_slot = slot.copy()
+            point_slot[~ok] = empty[0]
+        if frame_time is None:
+            frame_time = float(np.min(t)) if t is not None else self.frames * self.sweep_period
+        if t is None and not slot_times_given:
+            # column c fired at (c + 0.5) / cols of the sweep (columns follow time)
+            t = frame_time + (np.arange(cols) + 0.5) / cols * self.sweep_period
+        gt_slot = gt_inst = None
+        if gt_point_labels is not None:
+            gt_slot = np.zeros(rows * cols, np.uint8)
+            gt_slot[has] = np.asarray(gt_point_labels)[rep[has]]
+            gt_slot = gt_slot.reshape(rows, cols)
+        if gt_point_instance is not None:
+            gt_inst = np.zeros(rows * cols, np.uint32)
+            gt_inst[has] = np.asarray(gt_point_instance)[rep[has]]
+            gt_inst = gt_inst.reshape(rows, cols)
+        return Scan(
+            ranges=ranges.reshape(rows, cols),
+            sensor=sensor,
+            name=name,
+            source=source,
+            intensity=inten,
+            timestamps=t,
+            xyz=slot_xyz.reshape(rows, cols, 3),
+            cloud=cloud,
+            point_slot=point_slot,
+            gt_labels=gt_slot,
+            gt_point_labels=None if gt_point_labels is None else np.asarray(gt_point_labels),
+            gt_instance=gt_inst,
+            gt_pose=gt_pose,
+            meta={"organize": report.as_dict(), "collisions": int(collisions), "frame_time": float(frame_time)},
+        )
