@@ -21,3 +21,28 @@ def _choose_numba_threading_layer() -> None:
 
 
 _choose_numba_threading_layer()
+
+_EXPORTS = {
+    "Config": "prc_slam.config",
+    "PRCConfig": "prc_slam.prc.config",
+    "Scan": "prc_slam.scan",
+    "SpinningSensor": "prc_slam.scan",
+    "ProfilerSensor": "prc_slam.scan",
+    "Pipeline": "prc_slam.pipeline",
+    "PipelineFrame": "prc_slam.pipeline",
+    "Preprocessor": "prc_slam.preprocess",
+    "PRCKissICP": "prc_slam.preprocess",
+    "OnlineDetector": "prc_slam.online",
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+
+def __getattr__(name: str):
+    """The public API, imported on first use (``from prc_slam import Pipeline, Preprocessor``)."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'prc_slam' has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(module), name)

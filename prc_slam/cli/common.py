@@ -1,0 +1,239 @@
+"""What every command shares: the console, the one error path, option types, tables."""
+
+from __future__ import annotations
+
+import functools
+import logging
+import sys
+from collections.abc import Callable
+from enum import Enum
+from pathlib import Path
+from typing import Any, TypeVar
+
+import click
+import typer
+from rich.console import Console
+from rich.logging import RichHandler
+from rich.table import Table
+
+console = Console(stderr=True, soft_wrap=True)
+log = logging.getLogger("prc_slam")
+DEFAULT_KITTI = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "kitti00"
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+class Mode(str, Enum):
+    urban = "urban"
+    forest = "forest"
+
+
+class Preset(str, Enum):
+    paper = "paper"
+    multibeam = "multibeam"
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one line naming the option or file: pydantic validation errors name the
+    option (``--speed: ...``), everything else is its message's first line."""
+    from pydantic import ValidationError
+
+    if isinstance(exc, ValidationError):
+        parts = []
+        for err in exc.errors():
+            loc = ".".join(str(p) for p in err.get("loc", ()))
+            name = "--" + loc.replace("_", "-") if loc else "config"
+            parts.append(
+                f"{name}: {err.get('msg', 'invalid')}" + (f" (got {err['input']!r})" if "input" in err else "")
+            )
+        return "; ".join(parts)
+    text = str(exc).strip() or type(exc).__name__
+    return " ".join(text.split("\n")[0].split())
+
+
+def fail(message: str, code: int = 2) -> typer.Exit:
+    console.print(f"[red]error:[/red] {message}", markup=True, highlight=False)
+    return typer.Exit(code=code)
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    from pydantic import ValidationError
+
+    from data_tools.errors import DataError
+    from prc_slam.pipeline import FrameError
+    from prc_slam.scan import ScanError
+
+    return (DataError, ScanError, FrameError, ValueError, ValidationError, OSError)
+
+
+def interrupted_by_user(exc: BaseException) -> bool:
+    """True for Ctrl-C, also when a C extension turned it into another error (e.g. Open3D's
+    ``ImportError: initialization failed`` when interrupted while loading)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt | click.exceptions.Abort):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def handles_errors(fn: F) -> F:
+    """The one error path of every command: a user error (bad file, bad option, malformed data)
+    → ``error: <option or file>: <problem>``, exit 2; Ctrl-C → ``interrupted``, exit 130."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except (typer.Exit, click.exceptions.Exit):
+            raise
+        except BaseException as exc:
+            if interrupted_by_user(exc):
+                raise fail("interrupted", 130) from None
+            if isinstance(exc, _user_errors()):
+                raise fail(one_line(exc)) from None
+            raise
+
+    return wrapper  # type: ignore[return-value]
+
+
+class OneLineGroup(typer.core.TyperGroup):
+    """Usage errors (unknown option, value out of range) as one line, exit 2; Ctrl-C exit 130."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):  # type: ignore[override]
+        try:
+            rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var, standalone_mode=False, **extra)
+        except click.exceptions.NoArgsIsHelpError as exc:
+            click.echo(exc.ctx.get_help() if exc.ctx else str(exc))
+            rv = 0
+        except click.UsageError as exc:
+            param = getattr(exc, "param", None)
+            message = exc.format_message()
+            if param is not None and getattr(param, "opts", None) and param.opts[0] not in message:
+                message = f"{param.opts[0]}: {message}"
+            console.print(f"[red]error:[/red] {message}", highlight=False)
+            rv = 2
+        except click.ClickException as exc:
+            console.print(f"[red]error:[/red] {exc.format_message()}", highlight=False)
+            rv = exc.exit_code
+        except (click.exceptions.Abort, KeyboardInterrupt):
+            console.print("[red]error:[/red] interrupted", highlight=False)
+            rv = 130
+        if standalone_mode:
+            sys.exit(rv or 0)
+        return rv
+
+
+def setup_logging(log_file: Path | None, quiet: bool) -> None:
+    """Warnings and progress lines on standard error (always), everything at INFO in ``log_file``."""
+    root = logging.getLogger("prc_slam")
+    for h in list(root.handlers):
+        root.removeHandler(h)
+    root.setLevel(logging.INFO)
+    root.propagate = False
+    handler = RichHandler(console=console, show_time=False, show_path=False, show_level=True, markup=False)
+    handler.setLevel(logging.WARNING if quiet else logging.INFO)
+    root.addHandler(handler)
+    if log_file is not None:
+        log_file.parent.mkdir(parents=True, exist_ok=True)
+        fh = logging.FileHandler(log_file)
+        fh.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        root.addHandler(fh)
+
+
+def say(message: str) -> None:
+    """A line for the user (standard error, and the log file)."""
+    log.info(message)
+
+
+def print_table(table: Table) -> None:
+    """Print a table on standard output, never truncated: full width off a terminal, folded cells on one."""
+    out = Console()
+    if not out.is_terminal:
+        out = Console(width=max(200, out.width))
+    for col in table.columns:
+        col.overflow = "fold"
+        col.no_wrap = False
+    out.print(table)
+
+
+def class_table(metrics: dict[str, Any], title: str) -> Table:
+    """Per-class precision / recall / F1."""
+    table = Table(title=title)
+    for col in ("class", "support", "precision", "recall", "f1"):
+        table.add_column(col, justify="right" if col != "class" else "left")
+
+    def fmt(v: float | None) -> str:
+        return "-" if v is None else f"{v:.3f}"
+
+    for name, s in metrics.get("per_class", {}).items():
+        table.add_row(name, str(s["support"]), fmt(s["precision"]), fmt(s["recall"]), fmt(s["f1"]))
+    return table
+
+
+def variant_table(metrics: dict[str, Any], title: str) -> Table:
+    from prc_slam.report import FIELDS, _fmt
+
+    variants = metrics["variants"]
+    fields = [f for f in FIELDS if any(f in m for m in variants.values())]
+    table = Table(title=title)
+    table.add_column("variant")
+    for f in fields:
+        table.add_column(f, justify="right")
+    for name, m in variants.items():
+        table.add_row(name, *(_fmt(m.get(f)) for f in fields))
+    return table
+
+
+def prc_config(mode: Mode, preset: Preset, adaptive: bool | None, config_path: Path | None):
+    from prc_slam.config import Config
+    from prc_slam.prc.config import PRCConfig
+
+    if config_path is not None:
+        cfg = Config.from_yaml(config_path).prc
+    elif preset is Preset.multibeam:
+        cfg = PRCConfig.preset("multibeam")
+    else:
+        cfg = PRCConfig.preset(mode.value)
+    updates: dict[str, Any] = {}
+    if config_path is None and preset is Preset.multibeam and mode is Mode.forest:
+        updates["mode"] = "forest"
+    if adaptive is not None:
+        updates["adaptive"] = adaptive
+    return cfg.model_copy(update=updates) if updates else cfg
+
+
+def run_config(preset: Preset, config_path: Path | None, mode: Mode = Mode.urban):
+    from prc_slam.config import Config
+    from prc_slam.odometry.classaware import ClassAwareConfig
+
+    if config_path is not None:
+        return Config.from_yaml(config_path)
+    return Config(prc=prc_config(mode, preset, None, None), classaware=ClassAwareConfig.for_mode(mode.value))
+
+
+def variant_list(text: str) -> list[str]:
+    names = [v.strip() for v in text.split(",") if v.strip()]
+    if not names:
+        raise ValueError("--variants: give at least one variant (e.g. raw,prc)")
+    return names
+
+
+def wrote(paths) -> None:
+    for p in paths:
+        if p is not None:
+            console.print(f"wrote {p}", highlight=False)
+
+
+RRD_OPT = typer.Option(None, "--rrd", help="write a Rerun recording (.rrd) here")
+CONNECT_OPT = typer.Option(None, "--connect", help="stream to a running Rerun viewer (rerun+http://host:9876/proxy)")
+SERVE_OPT = typer.Option(False, "--serve-web", help="serve the Rerun web viewer on localhost and print its address")
+EVERY_OPT = typer.Option(5, "--log-every", min=1, help="log clouds and images on every n-th frame")
+MAP_VOXEL_OPT = typer.Option(0.5, "--map-voxel", min=0.0, help="thin the logged local map to this voxel (m)")
+SERVE_SECONDS_OPT = typer.Option(
+    None, "--serve-seconds", min=0.0, help="with --serve-web: stop serving after this long"
+)
+FORMAT_OPT = typer.Option(None, "--format", help="input format (default: detected)")
+MAX_FRAMES_OPT = typer.Option(None, "--max-frames", min=1, help="use only the first N frames")
+JSON_OPT = typer.Option(None, "--json", help="write the metrics JSON here")

@@ -1,0 +1,180 @@
+"""``prc-slam compare``, ``prc-slam odometry`` and ``prc-slam view``."""
+
+from __future__ import annotations
+
+from enum import Enum
+from pathlib import Path
+
+import typer
+
+from prc_slam.cli.common import (
+    CONNECT_OPT,
+    EVERY_OPT,
+    FORMAT_OPT,
+    JSON_OPT,
+    MAP_VOXEL_OPT,
+    MAX_FRAMES_OPT,
+    RRD_OPT,
+    SERVE_OPT,
+    SERVE_SECONDS_OPT,
+    Mode,
+    Preset,
+    class_table,
+    console,
+    handles_errors,
+    print_table,
+    run_config,
+    variant_list,
+    variant_table,
+    wrote,
+)
+
+
+def register(app: typer.Typer) -> None:
+    app.command()(compare)
+    app.command()(odometry)
+    app.command()(view)
+
+
+class FilterMode(str, Enum):
+    none = "none"
+    prc = "prc"
+
+
+class Matching(str, Enum):
+    plain = "plain"
+    class_aware = "class-aware"
+
+
+class PoseFormat(str, Enum):
+    kitti = "kitti"
+    tum = "tum"
+
+
+@handles_errors
+def compare(
+    input: Path = typer.Argument(..., help="any supported input (KITTI, simulated, Ouster, bag, MCAP, PCD folder)"),
+    variants: str = typer.Option("raw,prc", help="comma-separated variants: raw, prc, prc+classaware"),
+    mode: Mode = typer.Option(Mode.urban, help="PRC classes: urban, or forest (trunks for class-aware matching)"),
+    deskew: bool = typer.Option(True, "--deskew/--no-deskew", help="KISS-ICP's constant-velocity deskewing"),
+    online: bool = typer.Option(False, "--online", help="also run the online car/curb detectors and log them"),
+    out: Path = typer.Option(Path("out/compare"), help="output directory"),
+    preset: Preset = typer.Option(Preset.multibeam, help="PRC parameters for the prc variant"),
+    config: Path | None = typer.Option(None, help="YAML config (prc, filter, odometry sections)"),
+    fmt: str | None = FORMAT_OPT,
+    max_frames: int | None = MAX_FRAMES_OPT,
+    rrd: Path | None = RRD_OPT,
+    connect: str | None = CONNECT_OPT,
+    serve_web: bool = SERVE_OPT,
+    log_every: int = EVERY_OPT,
+    map_voxel: float = MAP_VOXEL_OPT,
+    serve_seconds: float | None = SERVE_SECONDS_OPT,
+    mapclass: bool = typer.Option(False, "--mapclass", help="also classify the run's map (paper 004) vs PRC"),
+    mapclass_every: int = typer.Option(5, min=1, help="with --mapclass: accumulate every n-th frame"),
+) -> None:
+    """Run odometry variants side by side in one process (same KISS-ICP settings) and write
+    report.md, metrics.json, trajectories (KITTI and TUM), the config used and plots. With
+    ``--online``: the online detectors too, logged beside the clouds. With ``--mapclass``:
+    accumulate the map at the PRC variant's poses, classify it after registration and report the
+    agreement of PRC labels with it (mapclass.json, report.md)."""
+    from prc_slam.jobs.common import Viewer, write_json
+    from prc_slam.jobs.odometry import run_odometry, write_outputs
+    from prc_slam.jobs.progress import progress
+
+    names = variant_list(variants)
+    cfg = run_config(preset, config, mode)
+    cfg.odometry.deskew = cfg.odometry.deskew and deskew
+    viewer = Viewer(rrd, connect, serve_web, log_every, serve_seconds=serve_seconds, map_voxel=map_voxel)
+    with progress() as reporter:
+        run, prc_labels = run_odometry(
+            input, cfg, names, fmt=fmt, max_frames=max_frames, online=online, score_prc=True, viewer=viewer,
+            reporter=reporter, keep_labels_every=mapclass_every if mapclass else None,
+        )  # fmt: skip
+    written = run.written + write_outputs(run, cfg, out, f"Odometry comparison on {input}")
+    print_table(variant_table(run.metrics, f"odometry on {input}"))
+    if run.prc is not None and "per_class" in run.prc:
+        print_table(class_table(run.prc, "PRC labels against the reference"))
+    if run.online is not None and "per_class" in run.online:
+        print_table(class_table(run.online, "online detectors against the reference"))
+    if mapclass:
+        from prc_slam.cli.mapclass import print_mapclass
+        from prc_slam.jobs.mapclass import compare_mapclass
+        from prc_slam.report import mapclass_section
+
+        variant = next((v for v in names if v != "raw"), names[0])
+        mc = compare_mapclass(input, fmt, run, variant, mapclass_every, prc_labels, cfg, out)
+        console.print(
+            f"map: {mc['map_points']:,} points from every {mapclass_every}th frame at the {variant} poses",
+            highlight=False,
+        )
+        written += write_json(out / "mapclass.json", mc)
+        with (out / "report.md").open("a") as f:
+            f.write(mapclass_section(mc))
+        print_mapclass(mc, "map classification")
+    wrote(written)
+
+
+@handles_errors
+def odometry(
+    input: Path = typer.Argument(..., help="any supported input (KITTI, simulated, Ouster, bag, MCAP, PCD folder)"),
+    filter: FilterMode = typer.Option(FilterMode.prc, "--filter", help="none: every point; prc: PRC filter"),
+    matching: Matching = typer.Option(Matching.plain, help="plain KISS-ICP, or class-aware (needs --filter prc)"),
+    mode: Mode = typer.Option(Mode.urban, help="PRC classes: urban, or forest"),
+    deskew: bool = typer.Option(True, "--deskew/--no-deskew", help="KISS-ICP's constant-velocity deskewing"),
+    preset: Preset = typer.Option(Preset.multibeam, help="PRC parameters"),
+    config: Path | None = typer.Option(None, help="YAML config (prc, filter, odometry sections)"),
+    poses_out: Path | None = typer.Option(None, help="write the trajectory here"),
+    pose_format: PoseFormat = typer.Option(PoseFormat.kitti, help="trajectory file format"),
+    json_path: Path | None = JSON_OPT,
+    fmt: str | None = FORMAT_OPT,
+    max_frames: int | None = MAX_FRAMES_OPT,
+    rrd: Path | None = RRD_OPT,
+    connect: str | None = CONNECT_OPT,
+    serve_web: bool = SERVE_OPT,
+    log_every: int = EVERY_OPT,
+) -> None:
+    """KISS-ICP odometry on every frame, on all points or on the PRC-filtered ones."""
+    from prc_slam.jobs.common import Viewer, write_json
+    from prc_slam.jobs.odometry import run_odometry, trajectory_file
+    from prc_slam.jobs.progress import progress
+
+    if matching is Matching.class_aware and filter is FilterMode.none:
+        raise ValueError("--matching: class-aware needs PRC labels: use it with --filter prc")
+    name = "raw" if filter is FilterMode.none else "prc+classaware" if matching is Matching.class_aware else "prc"
+    cfg = run_config(preset, config, mode)
+    cfg.odometry.deskew = cfg.odometry.deskew and deskew
+    with progress() as reporter:
+        run, _ = run_odometry(
+            input, cfg, [name], fmt=fmt, max_frames=max_frames, viewer=Viewer(rrd, connect, serve_web, log_every),
+            reporter=reporter,
+        )  # fmt: skip
+    written = list(run.written)
+    if poses_out is not None:
+        written.append(trajectory_file(run, name, poses_out, pose_format.value))
+    print_table(variant_table(run.metrics, f"odometry on {input}"))
+    if json_path is not None:
+        written += write_json(json_path, run.metrics, cfg)
+    wrote(written)
+
+
+@handles_errors
+def view(
+    input: Path = typer.Argument(..., help="any supported input (KITTI, simulated, Ouster, bag, MCAP, PCD folder)"),
+    max_frames: int | None = MAX_FRAMES_OPT,
+    fmt: str | None = FORMAT_OPT,
+    online: bool = typer.Option(True, "--online/--no-online", help="also run and show the online detectors"),
+    log_every: int = typer.Option(1, "--log-every", min=1, help="log clouds and images on every n-th frame"),
+) -> None:
+    """Spawn the Rerun desktop viewer and watch PRC, the detectors and raw vs PRC-filtered odometry live."""
+    from prc_slam.config import Config
+    from prc_slam.jobs.common import Viewer
+    from prc_slam.jobs.odometry import run_odometry
+    from prc_slam.jobs.progress import progress
+    from prc_slam.prc.config import PRCConfig
+
+    cfg = Config(prc=PRCConfig.preset("multibeam"))
+    with progress() as reporter:
+        run_odometry(
+            input, cfg, ["raw", "prc"], fmt=fmt, max_frames=max_frames, online=online,
+            viewer=Viewer(spawn=True, every=log_every), reporter=reporter,
+        )  # fmt: skip

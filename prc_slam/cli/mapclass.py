@@ -1,0 +1,97 @@
+"""``prc-slam mapclass``."""
+
+from __future__ import annotations
+
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from prc_slam.cli.common import (
+    CONNECT_OPT,
+    FORMAT_OPT,
+    JSON_OPT,
+    MAX_FRAMES_OPT,
+    RRD_OPT,
+    SERVE_OPT,
+    class_table,
+    console,
+    handles_errors,
+    print_table,
+    say,
+    wrote,
+)
+
+
+def register(app: typer.Typer) -> None:
+    app.command()(mapclass)
+
+
+class Normals(str, Enum):
+    voxels = "voxels"
+    points = "points"
+
+
+def print_mapclass(metrics: dict[str, Any], title: str) -> None:
+    console.print(
+        f"{metrics['points']:,} points in {metrics['seconds']:.2f} s ({metrics['points_per_s'] / 1e6:.2f} M points/s)"
+        + (f", {metrics['tile']:g} m tiles" if metrics["tile"] else ""),
+        highlight=False,
+    )
+    console.print("stages (s): " + ", ".join(f"{k} {v:.2f}" for k, v in metrics["seconds_per_stage"].items()))
+    console.print("points per class: " + ", ".join(f"{k} {v:,}" for k, v in metrics["counts"].items()))
+    if "per_class" in metrics:
+        print_table(class_table(metrics, title))
+    for name, o in metrics.get("objects", {}).items():
+        console.print(f"{name} objects found: {o['found']} of {o['present']}", highlight=False)
+    if "prc_vs_map" in metrics:
+        print_table(class_table(metrics["prc_vs_map"], "PRC labels against the map classification"))
+
+
+@handles_errors
+def mapclass(
+    input: Path = typer.Argument(..., help="cloud file (LAS/LAZ, PLY, PCD, NPY) or a sequence to accumulate"),
+    out: Path = typer.Option(Path("out/mapclass"), help="output directory: one LAS 1.4 per class + combined"),
+    json_path: Path | None = JSON_OPT,
+    config: Path | None = typer.Option(None, help="YAML config (its mapclass section)"),
+    normals: Normals | None = typer.Option(None, help="normals/segmentation per voxel or per point (k-NN)"),
+    paper: bool = typer.Option(False, "--paper", help="the paper's steps only (our additions off)"),
+    tile: float | None = typer.Option(
+        None, min=0.0, help="tile side (m); 0: one piece; default: tiles above 12 M points"
+    ),
+    margin: float = typer.Option(6.0, min=0.0, help="context around each tile (m)"),
+    fmt: str | None = FORMAT_OPT,
+    max_frames: int | None = MAX_FRAMES_OPT,
+    every: int = typer.Option(1, min=1, help="sequence: accumulate every n-th frame"),
+    poses: Path | None = typer.Option(None, help="sequence: poses (KITTI format) instead of ground truth"),
+    rrd: Path | None = RRD_OPT,
+    connect: str | None = CONNECT_OPT,
+    serve_web: bool = SERVE_OPT,
+    map_voxel: float = typer.Option(0.2, "--map-voxel", min=0.0, help="thin the logged map to this voxel (m)"),
+) -> None:
+    """Classify a registered map after registration (paper 004) and segregate it into
+    per-class LAS files; scored against reference labels when a sequence has them."""
+    from prc_slam.config import Config
+    from prc_slam.jobs.common import Viewer, write_json
+    from prc_slam.jobs.mapclass import mapclass_job
+    from prc_slam.jobs.progress import progress
+    from prc_slam.mapclass import paper_config
+
+    cfg = Config.from_yaml(config) if config is not None else Config()
+    if paper:
+        cfg.mapclass = paper_config().model_copy(update={"normals": cfg.mapclass.normals})
+    if normals is not None:
+        cfg.mapclass.normals = normals.value
+    viewer = Viewer(rrd, connect, serve_web, 1, map_voxel=map_voxel)
+    with progress() as reporter:
+        metrics = mapclass_job(
+            input, cfg, out, tile=tile, margin=margin, fmt=fmt, max_frames=max_frames, every=every, poses=poses,
+            viewer=viewer, reporter=reporter, note=say,
+        )  # fmt: skip
+    print_mapclass(metrics, f"map classification of {input}")
+    written = [out / "map_classified.las"]
+    if json_path is not None:
+        written += write_json(json_path, metrics, cfg)
+    wrote(written)
+    console.print(f"one LAS per class in {out}", highlight=False)

@@ -1,0 +1,116 @@
+"""The ``classify`` and ``detect`` jobs: PRC or the online detectors over a whole input, scored
+against its ground truth, with label files, LAS and a Rerun recording on request."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from prc_slam.jobs.common import Viewer, frames_of, open_input
+from prc_slam.jobs.progress import Reporter
+from prc_slam.jobs.sinks import LabelFiles, LasFile, ViewerSink
+from prc_slam.pipeline import Pipeline
+from prc_slam.prc.config import PRCConfig
+from prc_slam.scoring import OnlineScorer, PRCScorer
+
+
+@dataclass
+class Outputs:
+    """Where a job writes per-frame outputs."""
+
+    labels_out: Path | None = None
+    las: Path | None = None
+    written: list[Path] = field(default_factory=list)
+
+
+def _file_sinks(outputs: Outputs, source: str) -> tuple[list, LasFile | None]:
+    sinks: list = []
+    if outputs.labels_out is not None:
+        sinks.append(LabelFiles(outputs.labels_out, source))
+    las = None if outputs.las is None else LasFile(outputs.las, source)
+    if las is not None:
+        sinks.append(las)
+    return sinks, las
+
+
+def _run(pipe: Pipeline, dataset, n: int, viewer: Viewer, reporter: Reporter | None, title: str):
+    task = None if reporter is None else reporter.task(title, n)
+    if task is not None:
+        pipe.on_frame = lambda _s: task.advance()
+    if viewer.sink is not None:
+        pipe.sinks.append(ViewerSink(viewer.sink))
+    done = [0]
+    inner = pipe.on_frame
+
+    def counted(step) -> None:
+        done[0] = step.index + 1
+        if inner is not None:
+            inner(step)
+
+    pipe.on_frame = counted
+    try:
+        result = pipe.run(frames_of(dataset, n))
+    except KeyboardInterrupt:
+        viewer.close(interrupted_at=done[0])
+        raise
+    return result
+
+
+def classify_job(
+    input: Path,
+    config: PRCConfig,
+    *,
+    fmt: str | None = None,
+    max_frames: int | None = None,
+    outputs: Outputs | None = None,
+    viewer: Viewer | None = None,
+    reporter: Reporter | None = None,
+    **open_options: Any,
+) -> tuple[dict[str, Any], list[Path]]:
+    """PRC on every frame of ``input``; returns the ``classify`` metrics and the files written."""
+    from prc_slam.prc.algorithm import warm_up
+
+    outputs = outputs or Outputs()
+    viewer = viewer or Viewer()
+    dataset, n = open_input(input, fmt, max_frames, **open_options)
+    warm_up()
+    scorer = PRCScorer()
+    sinks, las = _file_sinks(outputs, "prc")
+    result = _run(Pipeline(prc=config, sinks=[scorer, *sinks]), dataset, n, viewer, reporter, "PRC")
+    metrics = scorer.metrics(result)
+    metrics["input"] = str(input)
+    metrics["config"] = config.model_dump(mode="json")
+    written = [p for p in (viewer.close(), None if las is None else las.written) if p is not None]
+    if outputs.labels_out is not None:
+        written.append(outputs.labels_out)
+    return metrics, written
+
+
+def detect_job(
+    input: Path,
+    *,
+    paper: bool = False,
+    fmt: str | None = None,
+    max_frames: int | None = None,
+    outputs: Outputs | None = None,
+    viewer: Viewer | None = None,
+    reporter: Reporter | None = None,
+) -> tuple[dict[str, Any], list[Path]]:
+    """The online detectors (paper 001) on every frame; returns the ``detect`` metrics and files."""
+    from prc_slam.online import OnlineDetector
+
+    outputs = outputs or Outputs()
+    viewer = viewer or Viewer()
+    dataset, n = open_input(input, fmt, max_frames)
+    scorer = OnlineScorer()
+    sinks, las = _file_sinks(outputs, "online")
+    detector = OnlineDetector.paper() if paper else OnlineDetector()
+    pipe = Pipeline(online=detector, sinks=[scorer, *sinks])
+    result = _run(pipe, dataset, n, viewer, reporter, "online detectors")
+    metrics = scorer.metrics(result)
+    metrics["input"] = str(input)
+    written = [p for p in (viewer.close(), None if las is None else las.written) if p is not None]
+    if outputs.labels_out is not None:
+        written.append(outputs.labels_out)
+    return metrics, written

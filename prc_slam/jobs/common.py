@@ -1,0 +1,151 @@
+"""What every job shares: opening an input, writing results atomically, the Rerun viewer."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from data_tools import DataError, open_dataset
+from prc_slam.config import Config
+from prc_slam.pipeline import FrameError
+from prc_slam.scan import Scan, ScanError
+
+log = logging.getLogger("prc_slam")
+
+
+def open_input(path: Path, fmt: str | None = None, max_frames: int | None = None, **options: Any):
+    """Open ``path`` (format detected unless ``fmt``); returns the dataset and the frame count used."""
+    if max_frames is not None and max_frames < 1:
+        raise ValueError(f"--max-frames: must be at least 1, got {max_frames}")
+    dataset = open_dataset(path, fmt, **{k: v for k, v in options.items() if v is not None})
+    n = len(dataset) if max_frames is None else min(max_frames, len(dataset))
+    if n == 0:
+        raise DataError(f"{path}: no frames")
+    return dataset, n
+
+
+def frames_of(dataset, n: int) -> Iterator[Scan]:
+    """The first ``n`` scans; a frame that cannot be read raises :class:`FrameError` (the pipeline
+    skips and counts it) instead of ending the run."""
+    for i in range(n):
+        try:
+            yield dataset[i]
+        except (DataError, ScanError) as exc:
+            raise_frame_error(exc)
+
+
+def raise_frame_error(exc: Exception) -> None:
+    err = FrameError(str(exc))
+    raise err from exc
+
+
+def _json_default(value: object) -> object:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary name, so a reader never sees half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def write_json(path: Path, data: dict[str, Any], config: Config | None = None) -> list[Path]:
+    """The metrics JSON (and ``<stem>.config.yaml`` beside it with the config actually used)."""
+    write_text_atomic(path, json.dumps(data, indent=2, default=_json_default) + "\n")
+    written = [path]
+    if config is not None:
+        cfg_path = path.with_name(path.stem + ".config.yaml")
+        config.to_yaml(cfg_path)
+        written.append(cfg_path)
+    return written
+
+
+class Viewer:
+    """Where a run's Rerun recording goes: an ``.rrd`` file, a running viewer, the web viewer or a
+    spawned desktop viewer; a no-op when none is asked for.
+
+    The file is written as ``NAME.partial.rrd`` and renamed to ``NAME.rrd`` only when the run
+    completes; an interrupted run leaves ``NAME.partial.rrd`` ending with a text log
+    ``interrupted at frame k``.
+    """
+
+    def __init__(
+        self,
+        rrd: Path | None = None,
+        connect: str | None = None,
+        serve_web: bool = False,
+        every: int = 5,
+        spawn: bool = False,
+        serve_seconds: float | None = None,
+        map_voxel: float = 0.5,
+        web_port: int | None = None,
+        grpc_port: int | None = None,
+    ) -> None:
+        self.sink = None
+        self.rrd = rrd
+        self.address: str | None = None
+        self.serve_web, self.serve_seconds = serve_web, serve_seconds
+        if rrd is None and connect is None and not serve_web and not spawn:
+            return
+        from prc_slam.viz.sink import RerunSink, VizConfig, open_recording
+
+        if rrd is not None:
+            rrd.parent.mkdir(parents=True, exist_ok=True)
+        rec, self.address = open_recording(
+            rrd=None if rrd is None else str(self.partial_path),
+            connect=connect,
+            serve_web=serve_web,
+            spawn=spawn,
+            web_port=web_port,
+            grpc_port=grpc_port,
+        )
+        self.sink = RerunSink(rec, VizConfig(every=every, map_voxel=map_voxel))
+        if self.address:
+            log.info(f"web viewer: {self.address}")
+
+    @property
+    def partial_path(self) -> Path:
+        assert self.rrd is not None
+        stem = self.rrd.name[: -len(".rrd")] if self.rrd.name.endswith(".rrd") else self.rrd.name
+        return self.rrd.with_name(stem + ".partial.rrd")
+
+    def close(self, interrupted_at: int | None = None) -> Path | None:
+        """Flush the recording; rename the file when complete. Returns the file written."""
+        if self.sink is None:
+            return None
+        if interrupted_at is not None:
+            self.sink.warn(f"interrupted at frame {interrupted_at}: this recording is partial")
+        self.sink.rec.flush()
+        written = None
+        if self.rrd is not None:
+            self.sink.rec.disconnect()
+            if interrupted_at is None:
+                os.replace(self.partial_path, self.rrd)
+                written = self.rrd
+            else:
+                written = self.partial_path
+        if self.serve_web and interrupted_at is None:
+            limit = "" if self.serve_seconds is None else f" for {self.serve_seconds:g} s"
+            log.info(f"run finished; still serving the web viewer{limit} (Ctrl-C to stop)")
+            deadline = None if self.serve_seconds is None else time.monotonic() + self.serve_seconds
+            try:
+                while deadline is None or time.monotonic() < deadline:
+                    time.sleep(0.2)
+            except KeyboardInterrupt:
+                pass
+        return written

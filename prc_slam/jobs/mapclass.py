@@ -1,0 +1,161 @@
+"""The ``mapclass`` job: classification after registration (paper 004) of a cloud file or of a
+sequence accumulated at its poses, with per-class LAS files, scores and the map in Rerun."""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prc_slam.config import Config
+from prc_slam.jobs.common import Viewer
+from prc_slam.jobs.progress import Reporter
+
+
+def map_from_dataset(
+    dataset, n: int, every: int, poses: Path | np.ndarray | None, prc: dict[int, np.ndarray] | None = None
+):
+    """Accumulate every ``every``-th of the first ``n`` frames at the given poses (an array, a
+    KITTI pose file, or None for the sequence's ground truth), carrying reference labels and
+    instances when present and PRC labels for the frames in ``prc``."""
+    from data_tools.kitti import read_kitti_poses
+    from prc_slam.mapclass import accumulate
+
+    source = "ground truth" if poses is None else str(poses) if isinstance(poses, Path) else "the estimate"
+    if isinstance(poses, Path):
+        poses = read_kitti_poses(poses)
+    elif poses is None:
+        poses = getattr(dataset, "poses", None)
+    if poses is None:
+        raise ValueError("--poses: the input has no ground-truth poses; give a KITTI pose file")
+    if len(poses) < n:
+        raise ValueError(f"{source}: {len(poses)} poses for {n} frames")
+    times = getattr(dataset, "times", None)
+    times = np.arange(n) * 0.1 if times is None else np.asarray(times, dtype=float)
+
+    def frames():
+        for i in range(0, n, every):
+            scan = dataset[i]
+            extra = {}
+            ref = scan.reference_labels()
+            if ref is not None:
+                extra["reference"] = ref
+                if scan.gt_instance is not None:
+                    extra["instance"] = scan.per_point(scan.gt_instance)
+            if prc is not None and i in prc:
+                extra["prc"] = prc[i]
+            yield i, scan, extra
+
+    return accumulate(frames(), np.asarray(poses)[:n], times[:n])
+
+
+def classify_map(
+    points_source: Callable[[], Iterator[np.ndarray]],
+    n_points: int,
+    cfg: Config,
+    out: Path,
+    tile: float | None,
+    margin: float,
+    reference=None,
+    instance=None,
+    prc=None,
+    viewer: Viewer | None = None,
+    reporter: Reporter | None = None,
+) -> dict[str, Any]:
+    """Classify, write the per-class LAS files, score; returns the metrics. Tiled runs keep the
+    labels in a memory-mapped scratch file (one byte per point), so the map never has to fit."""
+    from data_tools.writers import ClassSplitWriter
+    from prc_slam.mapclass_run import UNTILED_MAX_POINTS, prc_agreement, run_mapclass, score_map
+
+    out.mkdir(parents=True, exist_ok=True)
+    tiled = tile > 0 if tile is not None else n_points > UNTILED_MAX_POINTS
+    task = None if reporter is None else reporter.task("map classification (tiles)")
+
+    def progress(done: int, total: int) -> None:
+        if task is not None:
+            task.total = total
+            task.advance(done - task.done)
+
+    with tempfile.TemporaryDirectory(dir=out) as scratch:
+        store = np.memmap(Path(scratch) / "labels.u8", np.uint8, "w+", shape=(max(n_points, 1),)) if tiled else None
+        labels, metrics = run_mapclass(
+            points_source, n_points, cfg.mapclass, tile, margin,
+            labels_out=None if store is None else store[:n_points], progress=progress,
+        )  # fmt: skip
+        with ClassSplitWriter(out) as writer:
+            start = 0
+            for part, chunk in enumerate(points_source()):
+                writer.write(chunk, labels[start : start + len(chunk)])
+                if viewer is not None and viewer.sink is not None:
+                    viewer.sink.log_map(chunk, labels[start : start + len(chunk)], part)
+                start += len(chunk)
+        labels = np.array(labels) if reference is not None or prc is not None else None
+        del store
+    metrics["files"] = {k: str(v) for k, v in writer.paths.items()}
+    if reference is not None:
+        metrics.update(score_map(labels, reference, instance))
+    if prc is not None:
+        metrics["prc_vs_map"] = prc_agreement(prc, labels)
+    return metrics
+
+
+def mapclass_job(
+    input: Path,
+    cfg: Config,
+    out: Path,
+    *,
+    tile: float | None = None,
+    margin: float = 6.0,
+    fmt: str | None = None,
+    max_frames: int | None = None,
+    every: int = 1,
+    poses: Path | None = None,
+    viewer: Viewer | None = None,
+    reporter: Reporter | None = None,
+    note: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Classify a cloud file, or a sequence accumulated at its poses (ground truth or ``poses``)."""
+    from data_tools.clouds import cloud_chunks, cloud_size, is_cloud_file
+    from prc_slam.jobs.common import open_input
+    from prc_slam.mapclass.tiles import array_chunks
+
+    viewer = viewer or Viewer()
+    if is_cloud_file(input):
+        metrics = classify_map(
+            lambda: cloud_chunks(input), cloud_size(input), cfg, out, tile, margin, viewer=viewer, reporter=reporter
+        )
+    else:
+        dataset, n = open_input(input, fmt, max_frames)
+        cloud = map_from_dataset(dataset, n, every, poses)
+        if note is not None:
+            note(f"accumulated {len(cloud):,} points from {len(range(0, n, every))} frames")
+        metrics = classify_map(
+            lambda: array_chunks(cloud.points), len(cloud), cfg, out, tile, margin,
+            cloud.attributes.get("reference"), cloud.attributes.get("instance"), viewer=viewer, reporter=reporter,
+        )  # fmt: skip
+    viewer.close()
+    metrics["input"] = str(input)
+    return metrics
+
+
+def compare_mapclass(
+    input: Path, fmt: str | None, run, variant: str, every: int, prc_labels: dict, cfg: Config, out: Path
+) -> dict[str, Any]:
+    """``compare --mapclass``: the map accumulated at ``variant``'s poses, classified after
+    registration, and PRC's agreement with it."""
+    from prc_slam.jobs.common import open_input
+    from prc_slam.mapclass.tiles import array_chunks
+
+    dataset, _ = open_input(input, fmt)
+    n = len(run.result.times)
+    cloud = map_from_dataset(dataset, n, every, run.result.estimate_in_world(variant), prc_labels or None)
+    mc = classify_map(
+        lambda: array_chunks(cloud.points), len(cloud), cfg, out / "mapclass", None, 6.0,
+        cloud.attributes.get("reference"), cloud.attributes.get("instance"), cloud.attributes.get("prc"),
+    )  # fmt: skip
+    mc["poses"] = variant
+    mc["map_points"] = len(cloud)
+    return mc
