@@ -11,9 +11,10 @@ import numpy as np
 from data_tools.errors import DataError
 from prc_slam.scan import Scan
 
-FORMATS = ("kitti", "ouster", "sim", "ouster-pcap", "velodyne-pcap")
+FORMATS = ("kitti", "ouster", "sim", "ouster-pcap", "velodyne-pcap", "pcd", "las")
 # aliases accepted by --format
-FORMAT_ALIASES = {"pcap": "ouster-pcap"}
+FORMAT_ALIASES = {"pcap": "ouster-pcap", "ply": "pcd", "bin": "pcd", "laz": "las"}
+SWEEP_SUFFIXES = (".pcd", ".ply", ".bin")
 
 
 class Dataset(Protocol):
@@ -57,6 +58,8 @@ def detect_format(path: str | Path) -> str:
             return "kitti"
         if any(path.glob("*.npz")):
             return "ouster"
+        if any(f.suffix.lower() in SWEEP_SUFFIXES for f in path.iterdir()):
+            return "pcd"
     elif path.suffix == ".npz":
         return "ouster"
     elif path.suffix.lower() in (".pcap", ".pcapng"):
@@ -67,9 +70,13 @@ def detect_format(path: str | Path) -> str:
             return "velodyne-pcap"
         find_metadata(path)  # a pcap without its json: one-line error naming the file
         return "ouster-pcap"
+    elif path.suffix.lower() in SWEEP_SUFFIXES:
+        return "pcd"
+    elif path.suffix.lower() in (".las", ".laz"):
+        return "las"
     raise DataError(
         f"{path}: unknown input format (expected a simulated sequence with sim.json, a KITTI directory with "
-        "velodyne/, Ouster .npz, or an Ouster or Velodyne .pcap)"
+        "velodyne/, Ouster .npz, an Ouster or Velodyne .pcap, a folder of .pcd/.ply/.bin sweeps, or .las/.laz)"
     )
 
 
@@ -100,4 +107,11 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
 
         model = options.get("model")
         return VelodynePcapSequence(path, model=None if model is None else str(model))
+    if fmt in ("pcd", "las"):
+        from data_tools.pcd import SweepFolder
+
+        rows, cols = options.get("rows"), options.get("cols")
+        return SweepFolder(
+            path, rows=None if rows is None else int(str(rows)), cols=None if cols is None else int(str(cols))
+        )
     raise DataError(f"{path}: unsupported format {fmt!r}; choose from {FORMATS}")

@@ -209,3 +209,70 @@ def write_pcap(path: Path, payloads: list[bytes], stamps: list[float], port: int
             eth = b"\xff" * 6 + b"\x60\x76\x88\x00\x00\x01" + b"\x08\x00" + ip
             f.write(struct.pack("<IIII", int(s), round(s % 1 * 1e6), len(eth), len(eth)) + eth)
     return path
+
+
+@pytest.fixture(scope="module")
+def vlp16_capture(tmp_path_factory):
+    pytest.importorskip("velodyne_decoder", reason="velodyne-decoder is not installed")
+    payloads, stamps, truth = vlp16_stream()
+    path = write_pcap(tmp_path_factory.mktemp("vlp16") / "vlp16.pcap", payloads, stamps)
+    return path, truth
+
+
+def test_velodyne_pcap_detected_and_decoded(vlp16_capture):
+    path, truth = vlp16_capture
+    ds = open_dataset(path)
+    assert ds.format == "velodyne-pcap" and ds.model == "VLP16"
+    returns = truth[truth[:, 3] > 0]
+    sweeps = [ds.sweep(i)[1] for i in range(len(ds))]
+    assert len(ds) == 3  # 2.3 revolutions: two whole sweeps and the rest
+    pts = np.concatenate(sweeps)
+    assert len(pts) == len(returns)  # every return decoded, in firing order
+    xyz = np.column_stack([pts["x"], pts["y"], pts["z"]]).astype(np.float64)
+    r = np.linalg.norm(xyz, axis=1)
+    assert np.abs(r - returns[:, 3]).max() < 0.005  # 2 mm range resolution
+    elevation = np.degrees(np.arcsin(xyz[:, 2] / r))
+    assert np.abs(elevation - VLP16_ELEVATION[returns[:, 2].astype(int)]).max() < 0.2
+
+
+def test_velodyne_pcap_organised_into_true_slots(vlp16_capture):
+    """Each sweep through the organiser: one row per beam (top beam first), columns in firing
+    order; every decoded point gets one label back."""
+    path, truth = vlp16_capture
+    ds = open_dataset(path)
+    returns = truth[truth[:, 3] > 0]
+    beam_row = np.argsort(np.argsort(-VLP16_ELEVATION))  # laser id -> row, top beam first
+    start = 0
+    cfg = PRCConfig.preset("multibeam")
+    for i in range(2):  # the two whole sweeps
+        scan = ds[i]
+        n = scan.n_points
+        t = returns[start : start + n]
+        start += n
+        report = scan.meta["organize"]
+        assert scan.shape[0] == 16 and report["rings"] == 16 and report["method"] == "ring-field"
+        row = scan.point_slot // scan.shape[1]
+        assert (row == beam_row[t[:, 2].astype(int)]).mean() == 1.0
+        # each point sits in the column whose azimuth (sensor model) is its own, within one column
+        xyz = scan.points().astype(np.float64)
+        slot_az = scan.sensor.azimuth().ravel()[scan.point_slot]
+        gap = np.angle(np.exp(1j * (np.arctan2(xyz[:, 1], xyz[:, 0]) - slot_az)))
+        assert (np.abs(gap) <= 2 * np.pi / scan.shape[1]).mean() >= 0.99
+        labels = scan.per_point(classify_scan(scan, cfg))
+        assert labels.shape == (n,)
+        assert scan.point_times() is not None and np.ptp(scan.point_times()) < 0.11
+
+
+def test_velodyne_pcap_bad_input(tmp_path):
+    pytest.importorskip("velodyne_decoder", reason="velodyne-decoder is not installed")
+    from data_tools.velodyne_pcap import VelodynePcapSequence
+
+    payloads, stamps, _ = vlp16_stream(n_sweeps=0.5)
+    path = write_pcap(tmp_path / "v.pcap", payloads, stamps)
+    with pytest.raises(DataError, match="unknown Velodyne model 'VLP99'") as exc:
+        VelodynePcapSequence(path, model="VLP99")
+    _one_line_error(exc, path)
+    empty = write_pcap(tmp_path / "empty.pcap", [], [])
+    with pytest.raises(DataError) as exc:  # neither Velodyne packets nor an Ouster json
+        open_dataset(empty)
+    _one_line_error(exc, empty)
