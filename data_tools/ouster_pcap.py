@@ -236,6 +236,7 @@ class OusterPcapSequence(SequenceBase):
         missing = int((in_window & ~valid).sum())
         if missing:
             log.warning("%s: %d of %d columns missing (dropped packets or partial sweep)", src, missing, lf.w)
+        refl = "REFLECTIVITY2" if self.field == "RANGE2" else "REFLECTIVITY"
         xyz = np.asarray(self._lut(rng), dtype=np.float64)
         rot, off = self._to_lidar
         xyz = xyz @ rot.T + off
@@ -247,7 +248,7 @@ class OusterPcapSequence(SequenceBase):
             beam_azimuth_deg=np.asarray(self.info.beam_azimuth_angles, dtype=np.float64),
             pixel_shift_by_row=np.asarray(self.info.format.pixel_shift_by_row, dtype=np.int64),
             column_valid=valid,
-            reflectivity=np.asarray(lf.field("REFLECTIVITY")) if lf.has_field("REFLECTIVITY") else None,
+            reflectivity=np.asarray(lf.field(refl)) if lf.has_field(refl) else None,
             xyz_lidar_m=xyz.astype(np.float32),
             destaggered=self.destaggered,
             name=f"{i:06d}",

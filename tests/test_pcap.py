@@ -276,3 +276,10 @@ def test_velodyne_pcap_bad_input(tmp_path):
     with pytest.raises(DataError) as exc:  # neither Velodyne packets nor an Ouster json
         open_dataset(empty)
     _one_line_error(exc, empty)
+
+
+def test_missing_range_channel_is_a_clear_error(pcap_files):
+    # single-return profiles have no second-return channel
+    with pytest.raises(DataError, match="has no RANGE2 channel") as exc:
+        OusterPcapSequence(pcap_files[0], field="RANGE2")
+    _one_line_error(exc, pcap_files[0])
