@@ -11,9 +11,10 @@ import numpy as np
 from data_tools.errors import DataError
 from prc_slam.scan import Scan
 
-FORMATS = ("kitti", "ouster", "sim", "ouster-pcap", "velodyne-pcap", "pcd", "las")
+FORMATS = ("kitti", "ouster", "sim", "ouster-pcap", "velodyne-pcap", "pcd", "las", "rosbag")
 # aliases accepted by --format
 FORMAT_ALIASES = {"pcap": "ouster-pcap", "ply": "pcd", "bin": "pcd", "laz": "las"}
+FORMAT_ALIASES.update({k: "rosbag" for k in ("bag", "mcap", "ros1", "ros2", "db3")})
 SWEEP_SUFFIXES = (".pcd", ".ply", ".bin")
 
 
@@ -46,6 +47,12 @@ class SequenceBase:
         raise NotImplementedError
 
 
+def _bag_kind(path: Path) -> str | None:
+    from data_tools.rosbag import bag_kind
+
+    return bag_kind(path)
+
+
 def detect_format(path: str | Path) -> str:
     """Guess the input format of ``path`` (raises :class:`DataError` when unknown)."""
     path = Path(path)
@@ -54,6 +61,8 @@ def detect_format(path: str | Path) -> str:
     if path.is_dir():
         if (path / "sim.json").is_file():
             return "sim"
+        if _bag_kind(path) is not None:  # rosbag2 folder (metadata.yaml / .db3), split .bag files
+            return "rosbag"
         if (path / "velodyne").is_dir():
             return "kitti"
         if any(path.glob("*.npz")):
@@ -62,6 +71,8 @@ def detect_format(path: str | Path) -> str:
             return "pcd"
     elif path.suffix == ".npz":
         return "ouster"
+    elif _bag_kind(path) is not None:  # .bag, .db3, .mcap, a rosbag2 metadata.yaml
+        return "rosbag"
     elif path.suffix.lower() in (".pcap", ".pcapng"):
         from data_tools.ouster_pcap import find_metadata
         from data_tools.velodyne_pcap import looks_like_velodyne
@@ -76,7 +87,8 @@ def detect_format(path: str | Path) -> str:
         return "las"
     raise DataError(
         f"{path}: unknown input format (expected a simulated sequence with sim.json, a KITTI directory with "
-        "velodyne/, Ouster .npz, an Ouster or Velodyne .pcap, a folder of .pcd/.ply/.bin sweeps, or .las/.laz)"
+        "velodyne/, Ouster .npz, an Ouster or Velodyne .pcap, a folder of .pcd/.ply/.bin sweeps, .las/.laz, "
+        "a ROS 1 .bag, a ROS 2 .db3 / rosbag2 folder or an .mcap)"
     )
 
 
@@ -114,4 +126,9 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
         return SweepFolder(
             path, rows=None if rows is None else int(str(rows)), cols=None if cols is None else int(str(cols))
         )
+    if fmt == "rosbag":
+        from data_tools.rosbag import RosbagSequence
+
+        topic = options.get("topic")
+        return RosbagSequence(path, topic=None if topic is None else str(topic))
     raise DataError(f"{path}: unsupported format {fmt!r}; choose from {FORMATS}")

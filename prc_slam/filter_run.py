@@ -1,0 +1,196 @@
+"""The ``filter`` job: every sweep through PRC and the filter policy, the kept points written as a
+stream any SLAM system can replay (issue 14, part 3).
+
+Per frame: PRC labels every input point (:func:`prc_slam.pipeline.classify_frames`), the
+filter policy (:func:`prc_slam.filtering.filter_points`: drop noise, thin ground, keep the
+rest) chooses the points to keep, and a writer emits the kept points with their label in the
+input's own kind where possible (``.mcap`` / ROS 2 / ROS 1 bag with the same topic, frame id and
+stamps; a PCD folder; KITTI bins). Points without a return (label ``no_return``, e.g. the zero
+points of an organised Ouster cloud or NaN points) are never written: they are not measurements.
+
+With ``keep_labels`` the policy is replaced by a plain class selection: every point whose label
+is listed is kept (no thinning), every other point is dropped.
+
+The writers live in ``data_tools.stream_out`` (the core does not import ``data_tools`` at module
+level; the default writer factory is imported when the job runs, as ``prc_slam.benchmark``
+does for its inputs).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prc_slam import labels as L
+from prc_slam.filtering import FilterConfig, filter_points
+from prc_slam.pipeline import classify_frames
+from prc_slam.prc.config import PRCConfig
+from prc_slam.scan import Scan, ScanError
+
+
+def parse_keep_labels(values: Sequence[str | int] | str | None) -> list[int] | None:
+    """Label names or codes (``"ground,building"``, ``["2", "vehicle"]``) → codes; None stays None."""
+    if values is None:
+        return None
+    if isinstance(values, str):
+        values = [values]
+    codes: list[int] = []
+    for v in values:
+        for item in str(v).split(","):
+            item = item.strip()
+            if not item:
+                continue
+            if item.isdigit():
+                code = int(item)
+                if code not in L.CODE_TO_NAME:
+                    raise ValueError(f"unknown label code {code}; known: {sorted(L.CODE_TO_NAME)}")
+            elif item in L.NAME_TO_CODE:
+                code = L.NAME_TO_CODE[item]
+            else:
+                raise ValueError(f"unknown label {item!r}; choose from {', '.join(L.NAME_TO_CODE)}")
+            codes.append(code)
+    if not codes:
+        raise ValueError("--keep-labels names no label")
+    return sorted(set(codes))
+
+
+def choose_points(
+    points: np.ndarray,
+    labels: np.ndarray,
+    config: FilterConfig,
+    *,
+    one_sided: np.ndarray | None = None,
+    keep_labels: Sequence[int] | None = None,
+) -> np.ndarray:
+    """Mask of the points written to the filtered stream (input order).
+
+    The filter policy of ``config`` (or, with ``keep_labels``, the listed classes only); points
+    labelled ``no_return`` or with non-finite coordinates are never kept.
+    """
+    points = np.asarray(points)
+    labels = np.asarray(labels, dtype=np.uint8)
+    finite = np.isfinite(points).all(axis=1)
+    if keep_labels is not None:
+        keep = np.isin(labels, np.asarray(list(keep_labels), dtype=np.uint8))
+    else:
+        policy = config.model_copy(update={"drop": sorted(set(config.drop) | {L.NO_RETURN})})
+        safe = np.where(finite[:, None], points, 0.0)
+        keep = filter_points(safe, labels, policy, one_sided).keep
+    return keep & finite & (labels != L.NO_RETURN)
+
+
+def _count(labels: np.ndarray) -> np.ndarray:
+    return np.bincount(np.asarray(labels, dtype=np.uint8), minlength=256)
+
+
+def run_filter(
+    dataset: Iterable[Scan],
+    out: str | Path,
+    config: Any,
+    *,
+    keep_labels: Sequence[str | int] | None = None,
+    progress: Callable[[int, int | None], None] | None = None,
+    out_format: str | None = None,
+    label_dtype: str = "uint8",
+    overwrite: bool = False,
+    writer_factory: Callable[..., Any] | None = None,
+) -> dict[str, Any]:
+    """Classify every sweep of ``dataset`` with PRC, filter it and write the kept points to ``out``.
+
+    Parameters
+    ----------
+    dataset : a Dataset (``data_tools.open_dataset``) or any iterable of Scans
+    out : output path (a ``.mcap`` file, a ``.bag`` file, a rosbag2 folder, a PCD or KITTI folder)
+    config : ``prc_slam.config.Config`` (its ``prc`` and ``filter`` parts are used)
+    keep_labels : label names or codes; replaces the policy by "keep exactly these classes"
+    progress : callable(frames_done, frames_total_or_None), called after every frame
+    out_format : ``mcap``, ``ros2``, ``ros1``, ``pcd`` or ``kitti``; default from the suffix of
+        ``out``, else the input's own kind (see ``data_tools.stream_out.open_stream_writer``)
+    label_dtype : ``uint8`` or ``uint16`` (type of the ``label`` field in bag/MCAP output)
+    overwrite : replace an existing ``out``
+    writer_factory : callable(out, dataset, out_format, label_dtype=, overwrite=) returning a
+        writer with ``write(scan, keep, labels)``, ``close()``, ``format``; default
+        ``data_tools.stream_out.open_stream_writer``
+
+    Returns
+    -------
+    dict
+        ``{"frames", "points_in", "points_kept", "kept_fraction", "per_class": {name: {"in",
+        "kept"}}, "out", "out_format", "keep_labels", "seconds", "prc_seconds", "organize"}``
+        (``organize`` when the reader organised the sweeps: warnings and the worst collision
+        share over the run).
+    """
+    prc_cfg: PRCConfig = config.prc
+    filt_cfg: FilterConfig = config.filter
+    codes = parse_keep_labels(keep_labels)
+    if writer_factory is None:
+        from data_tools.stream_out import open_stream_writer as writer_factory
+    try:
+        total: int | None = len(dataset)  # type: ignore[arg-type]
+    except TypeError:
+        total = None
+    from prc_slam.prc.algorithm import warm_up
+
+    warm_up()
+    n_in = np.zeros(256, np.int64)
+    n_kept = np.zeros(256, np.int64)
+    frames = 0
+    prc_seconds = 0.0
+    warnings: list[str] = []
+    n_warnings = 0
+    worst_collisions = 0.0
+    organised = False
+    t0 = time.perf_counter()
+    writer = writer_factory(Path(out), dataset, out_format, label_dtype=label_dtype, overwrite=overwrite)
+    try:
+        for frame in classify_frames(dataset, prc_cfg):
+            scan = frame.scan
+            labels = np.asarray(frame.point_labels(), dtype=np.uint8)
+            points = scan.points()
+            if len(points) != len(labels):
+                raise ScanError(f"{scan.source}: {len(labels)} labels for {len(points)} input points")
+            keep = choose_points(points, labels, filt_cfg, one_sided=frame.point_one_sided(), keep_labels=codes)
+            writer.write(scan, keep, labels)
+            n_in += _count(labels)
+            n_kept += _count(labels[keep])
+            prc_seconds += frame.seconds
+            frames += 1
+            org = scan.meta.get("organize")
+            if isinstance(org, dict):
+                organised = True
+                worst_collisions = max(worst_collisions, float(org.get("collisions_pct") or 0.0))
+                for w in org.get("warnings") or []:
+                    n_warnings += 1
+                    if w not in warnings and len(warnings) < 20:
+                        warnings.append(f"{scan.name}: {w}")
+            if progress is not None:
+                progress(frames, total)
+    finally:
+        writer.close()
+    present = np.flatnonzero(n_in)
+    result: dict[str, Any] = {
+        "frames": frames,
+        "points_in": int(n_in.sum()),
+        "points_kept": int(n_kept.sum()),
+        "kept_fraction": float(n_kept.sum() / n_in.sum()) if n_in.sum() else None,
+        "per_class": {
+            L.CODE_TO_NAME.get(int(c), f"code_{c}"): {"in": int(n_in[c]), "kept": int(n_kept[c])} for c in present
+        },
+        "out": str(out),
+        "out_format": getattr(writer, "format", out_format),
+        "keep_labels": None if codes is None else [L.CODE_TO_NAME[c] for c in codes],
+        "policy": None if codes is not None else filt_cfg.model_dump(mode="json"),
+        "seconds": time.perf_counter() - t0,
+        "prc_seconds": prc_seconds,
+    }
+    if organised:
+        result["organize"] = {
+            "warnings": n_warnings,
+            "first_warnings": warnings,
+            "max_collisions_pct": worst_collisions,
+        }
+    return result
