@@ -114,7 +114,9 @@ def test_fused_kernel_equals_reference_kernels(r, xi_s, xi_p, wrap):
     c_adj, c_in = kernels.support_counts(r, xs, xp, 4, wrap)
     expected = (r > 0) & (c_in >= 3) & (c_adj >= 2)
     grad_ref = kernels.gradient_background(r, expected, 0.3, 0.05, False, wrap, True)
-    sup, grad, one_sided = kernels.support_and_gradient(r, xs, xp, 4, 3, 2, 0.3, 0.05, False, wrap, True, True)
+    sup, grad, one_sided = kernels.support_and_gradient(
+        r, xs, xp, 4, 3, 2, 0.3, 0.05, False, wrap, True, True, 4, xs, xp, False
+    )
     np.testing.assert_array_equal(sup, expected)
     np.testing.assert_array_equal(one_sided, (r > 0) & ((c_in >= 3) != (c_adj >= 2)))
     np.testing.assert_array_equal(grad, grad_ref)
@@ -123,8 +125,36 @@ def test_fused_kernel_equals_reference_kernels(r, xi_s, xi_p, wrap):
     xs2 = (xs * rng.uniform(0.5, 3.0, r.shape)).astype(np.float32)
     xp2 = (xp * rng.uniform(0.5, 3.0, r.shape)).astype(np.float32)
     c_adj, c_in = kernels.support_counts(r, xs2, xp2, 4, wrap)
-    sup2, _, _ = kernels.support_and_gradient(r, xs2, xp2, 4, 3, 2, 0.3, 0.05, False, wrap, True, False)
+    sup2, _, _ = kernels.support_and_gradient(
+        r, xs2, xp2, 4, 3, 2, 0.3, 0.05, False, wrap, True, False, 4, xs, xp, False
+    )
     np.testing.assert_array_equal(sup2, (r > 0) & (c_in >= 3) & (c_adj >= 2))
+    # N_in-slice as the closest returns within a reach (skipping no-returns): same in both kernels
+    for reach in (6, 12):
+        c_adj, c_in = kernels.support_counts(r, xs2, xp2, 4, wrap, reach)
+        sup3, _, one3 = kernels.support_and_gradient(
+            r, xs2, xp2, 4, 3, 2, 0.3, 0.05, False, wrap, True, False, reach, xs, xp, False
+        )
+        np.testing.assert_array_equal(sup3, (r > 0) & (c_in >= 3) & (c_adj >= 2))
+        np.testing.assert_array_equal(one3, (r > 0) & ((c_in >= 3) != (c_adj >= 2)))
+        # second pass (one-sided rule): unsupported returns meeting either condition under (xs, xp)
+        _, _, one4 = kernels.support_and_gradient(
+            r, xs2, xp2, 4, 3, 2, 0.3, 0.05, False, wrap, True, False, reach, xs, xp, True
+        )
+        t_adj, t_in = kernels.support_counts(r, xs, xp, 4, wrap, reach)
+        np.testing.assert_array_equal(one4, (r > 0) & ~sup3 & ((t_in >= 3) | (t_adj >= 2)))
+
+
+def test_in_slice_reach_skips_dropouts():
+    """Hand-computed: a return whose in-slice neighbours within 4 columns are mostly dropouts
+    lacks support over the paper's slots and has it over the closest returns."""
+    row = np.array([5.0, 5.0, 0, 0, 0, 5.0, 0, 0, 0, 5.0, 5.0, 5.0, 5.0], dtype=np.float32)
+    r = np.vstack([row, row, row])
+    xs = np.full(r.shape, 1.0, np.float32)
+    _, c_in = kernels.support_counts(r, xs, xs, 4, False)
+    assert c_in[1, 5] == 2  # columns 1 and 9 only
+    _, c_in = kernels.support_counts(r, xs, xs, 4, False, 12)
+    assert c_in[1, 5] == 6  # columns 0, 1 on the left, 9-12 on the right
 
 
 def _grad(row, literal=False, alpha=0.3, d_c=0.05):

@@ -19,6 +19,7 @@ adaptive thresholds (our addition, see :func:`support_thresholds`).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,7 +27,10 @@ import numpy as np
 from prc_slam import labels as L
 from prc_slam.prc import kernels
 from prc_slam.prc.config import PRCConfig
+from prc_slam.prc.ground import GroundModelError, GroundResult, GroundState, column_ground
 from prc_slam.scan import Scan, SensorModel
+
+log = logging.getLogger("prc_slam.prc")
 
 #: |N_adj-slice| of eq. (7): three slots in the previous and three in the next scan line.
 N_ADJ = 6
@@ -50,6 +54,10 @@ class BlockResult:
         Noise points that meet one of the two conditions of eq. (4) (e.g. thin poles).
     row0 : int
         Index of the block's first row in the stream.
+    ground : GroundResult, optional
+        What the column ground (``config.ground``) found, when it ran.
+    ground_error : str, optional
+        Why the column ground found no ground in this sweep (no ground below the sensor).
     """
 
     labels: np.ndarray
@@ -58,6 +66,8 @@ class BlockResult:
     smooth: np.ndarray
     one_sided: np.ndarray
     row0: int = 0
+    ground: GroundResult | None = None
+    ground_error: str | None = None
 
 
 @dataclass
@@ -70,7 +80,7 @@ class PRCState:
 
 
 def support_thresholds(
-    ranges: np.ndarray, config: PRCConfig, sensor: SensorModel | None
+    ranges: np.ndarray, config: PRCConfig, sensor: SensorModel | None, incidence_deg: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-slot thresholds ``(xi_s, xi_p)``.
 
@@ -80,16 +90,18 @@ def support_thresholds(
     ``xi(i) = max(xi, tan(beta) * s(i))`` where ``s(i)`` is the slot spacing at normal
     incidence from :meth:`SensorModel.neighbour_spacing` (range times angular step for a
     spinning sensor). Fixed thresholds otherwise cut distant ground on multi-beam sensors,
-    where adjacent rings hit the ground metres apart.
+    where adjacent rings hit the ground metres apart. ``incidence_deg`` overrides ``beta``
+    (the one-sided rule's stricter thresholds).
     """
     shape = ranges.shape
     xi_s = np.full(shape, config.xi_s, dtype=np.float32)
     xi_p = np.full(shape, config.xi_p, dtype=np.float32)
-    if config.adaptive:
+    if config.adaptive or incidence_deg is not None:
         if sensor is None:
-            raise ValueError("adaptive thresholds need a sensor model")
+            raise ValueError("adaptive thresholds (and the one-sided rule) need a sensor model")
         s_in, s_adj = sensor.neighbour_spacing(ranges)
-        factor = np.float32(np.tan(np.radians(config.adaptive_incidence_deg)))
+        beta = config.adaptive_incidence_deg if incidence_deg is None else incidence_deg
+        factor = np.float32(np.tan(np.radians(beta)))
         np.maximum(xi_s, factor * s_adj, out=xi_s)
         np.maximum(xi_p, factor * s_in, out=xi_p)
     return xi_s, xi_p
@@ -110,9 +122,17 @@ def support_counts_needed(config: PRCConfig) -> tuple[int, int]:
 def support_and_background(
     ranges: np.ndarray, config: PRCConfig, sensor: SensorModel | None, wrap: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``S_b`` (eqs. 2-8), ``G_b`` (eq. 9) and the one-sided noise points of a block."""
+    """``S_b`` (eqs. 2-8), ``G_b`` (eq. 9) and the one-sided noise points of a block.
+
+    With ``config.one_sided_incidence_deg`` the one-sided points come from a second pass over
+    the unsupported returns under thresholds at that incidence (see
+    :func:`kernels.support_and_gradient`)."""
     xi_s, xi_p = support_thresholds(ranges, config, sensor)
     need_in, need_adj = support_counts_needed(config)
+    second = config.one_sided_incidence_deg is not None
+    xi_s2, xi_p2 = (
+        support_thresholds(ranges, config, sensor, config.one_sided_incidence_deg) if second else (xi_s, xi_p)
+    )
     return kernels.support_and_gradient(
         ranges,
         xi_s,
@@ -126,6 +146,10 @@ def support_and_background(
         wrap,
         config.gradient_axes == "both",
         not config.adaptive,  # constant thresholds
+        config.in_slice_reach,
+        xi_s2,
+        xi_p2,
+        second,
     )
 
 
@@ -179,6 +203,7 @@ def prc_block(
     wrap: bool = False,
     state: PRCState | None = None,
     row0: int = 0,
+    ground_state: GroundState | None = None,
 ) -> BlockResult:
     """Run Algorithm 1 on one ``k x M`` block.
 
@@ -196,6 +221,8 @@ def prc_block(
         it the block stands alone.
     row0 : int
         Stream index of the block's first row (recorded in the result).
+    ground_state : GroundState, optional
+        Carried between the sweeps of one recording by the column ground (temporal step).
     """
     ranges = np.ascontiguousarray(ranges, dtype=np.float32)
     cols = ranges.shape[1]
@@ -237,8 +264,9 @@ def prc_block(
     # Step 6: classification. Urban: the largest smooth patch is ground, other smooth patches
     # building; forest: smooth patches are trunks, ground comes from eq. (12).
     urban = config.mode == "urban"
+    columns = urban and _column_ground_applies(config, sensor)
     ground = 0
-    if urban:
+    if urban and not columns:
         is_smooth = seg_area >= config.A
         ground = _ground_segment(uniq[is_smooth], seg_area[is_smooth], state if carry else None)
     out = kernels.class_codes(
@@ -248,12 +276,57 @@ def prc_block(
     if not urban:
         axis = config.density_axis or ("rows" if wrap else "columns")
         out[column_density_ground(smooth, config, axis) & supported] = L.GROUND
+    ground_result, ground_error = None, None
+    if columns:
+        assert sensor is not None  # checked by _column_ground_applies
+        try:
+            # ground is a class of the returns that are not isolated: supported or one-sided
+            ground_result = column_ground(
+                sensor.to_xyz(ranges),
+                supported | one_sided,
+                config,
+                altitude=getattr(sensor, "altitude", None),
+                segments=segments,
+                smooth=smooth,
+                state=ground_state,
+            )
+        except GroundModelError as exc:
+            ground_error = str(exc)
+            log.warning("PRC column ground: no ground in this sweep: %s", exc)
+        else:
+            out[ground_result.ground] = L.GROUND
 
     if carry:
         state.last_row = segments[-1].copy()
     return BlockResult(
-        labels=out, segments=segments, supported=supported, smooth=smooth, one_sided=one_sided, row0=row0
+        labels=out,
+        segments=segments,
+        supported=supported,
+        smooth=smooth,
+        one_sided=one_sided,
+        row0=row0,
+        ground=ground_result,
+        ground_error=ground_error,
     )
+
+
+def _column_ground_applies(config: PRCConfig, sensor: SensorModel | None) -> bool:
+    """Whether step 6 uses the column ground (:mod:`prc_slam.prc.ground`) for this block.
+
+    ``auto`` uses it for spinning sensors and keeps the paper's rule for profilers (whose
+    blocks are what Sec. II-F was made for); ``columns`` insists on a spinning sensor.
+    """
+    if config.ground == "largest_smooth":
+        return False
+    spinning = sensor is not None and not sensor.continuous_rows
+    if config.ground == "auto":
+        return spinning
+    if not spinning:
+        raise ValueError(
+            "PRC ground='columns' needs a spinning sensor's sweep with its sensor model (beams as rows); "
+            "use ground='largest_smooth' (the paper's rule) or 'auto' for profilers"
+        )
+    return True
 
 
 def _ground_segment(ids: np.ndarray, areas: np.ndarray, state: PRCState | None) -> int:
@@ -308,7 +381,8 @@ class PRCStream:
 
     Lines are buffered into blocks of ``config.k`` lines (Algorithm 1, step 1); labels do not
     depend on how the stream is chunked. Continuous sensors (profilers) carry segment ids
-    over block boundaries; for other sensors every block stands alone.
+    over block boundaries; for other sensors every block stands alone, except that the column
+    ground (:mod:`prc_slam.prc.ground`) carries its ground plane from sweep to sweep.
 
     Parameters
     ----------
@@ -322,6 +396,7 @@ class PRCStream:
         self.sensor = sensor
         self.wrap = (not sensor.continuous_rows) if config.wrap_columns is None else config.wrap_columns
         self.state = PRCState()
+        self.ground_state = GroundState()
         self._buffer: list[np.ndarray] = []
         self._buffered = 0
         self._rows_done = 0
@@ -356,7 +431,15 @@ class PRCStream:
         block = np.concatenate(self._buffer, axis=0)
         self._buffer, self._buffered = [], 0
         carry = self.state if self.sensor.continuous_rows else None
-        res = prc_block(block, self.config, sensor=self.sensor, wrap=self.wrap, state=carry, row0=self._rows_done)
+        res = prc_block(
+            block,
+            self.config,
+            sensor=self.sensor,
+            wrap=self.wrap,
+            state=carry,
+            row0=self._rows_done,
+            ground_state=None if self.sensor.continuous_rows else self.ground_state,
+        )
         self._rows_done += len(block)
         return res
 

@@ -24,6 +24,19 @@ class PRCConfig(BaseModel):
     xi_p: float = Field(1.0, ge=0.0, description="in-slice range threshold (m), eq. (6)")
     rho_c: float = Field(1.0 / 3.0, gt=0.0, le=1.0, description="minimum support cover density, eq. (3)")
     in_slice_half: int = Field(4, ge=1, description="N_in-slice = r_{i-n}..r_{i+n} without i, eq. (8)")
+    in_slice_reach: int = Field(
+        4,
+        ge=1,
+        description="eq. (8) as the 2n closest returns of the scan line within this many columns each side "
+        "(skipping slots without a return); <= in_slice_half: the paper's slots",
+    )
+    one_sided_incidence_deg: float | None = Field(
+        None,
+        ge=0.0,
+        lt=90.0,
+        description="one-sided rule: noise meeting either condition of eq. (4) under adaptive thresholds at this "
+        "incidence is not isolated (one_sided); None: exactly one condition under the support thresholds",
+    )
     alpha: float = Field(0.3, ge=0.0, lt=0.5, description="tolerance ratio of eq. (9)")
     d_c: float = Field(0.05, gt=0.0, description="minimal characteristic length (m), eq. (9)")
     gradient: Literal["symmetric", "literal"] = Field(
@@ -46,13 +59,32 @@ class PRCConfig(BaseModel):
         85.0, ge=0.0, lt=90.0, description="adaptive mode: steepest incidence angle the thresholds allow for"
     )
     wrap_columns: bool | None = Field(None, description="columns wrap around (None: yes for spinning sensors)")
+    ground: Literal["largest_smooth", "columns", "auto"] = Field(
+        "largest_smooth",
+        description="urban ground: the paper's largest smooth patch (Sec. II-F), the column ground of "
+        "prc.ground (spinning sensors), or auto (columns for spinning sensors, the paper's rule for profilers)",
+    )
+    ground_slope_deg: float = Field(
+        7.0, ge=0.0, lt=45.0, description="column ground: steepest ground slope between a beam and the last ground"
+    )
+    ground_step: float = Field(0.05, ge=0.0, description="column ground: height tolerance (m) on top of the slope")
+    ground_start: float = Field(
+        0.4, gt=0.0, description="column ground: first ground return of a column within this of z_ref (m)"
+    )
+    ground_tau: float = Field(0.1, gt=0.0, description="column ground: distance (m) to the local ground height")
+    ground_cell_deg: float = Field(3.0, gt=0.0, le=90.0, description="column ground: azimuth width of a cell")
+    ground_cell_m: float = Field(1.0, gt=0.0, description="column ground: horizontal range depth of a cell (m)")
+    ground_segment_share: float = Field(
+        0.5, gt=0.0, le=1.0, description="column ground: seed share from which a smooth PRC segment joins"
+    )
 
     @classmethod
     def preset(cls, name: str, **overrides: object) -> PRCConfig:
         """Presets. The paper's ``urban`` (k = 99, xi = 1.0 m, A = 30, gamma = 2) and ``forest``
         (k = 255, xi = 0.01 m); and ``multibeam``, our setting for spinning multi-beam sensors:
-        urban plus thresholds scaled with the slot spacing, eq. (9) also across scan lines and
-        ``d_c = 0.5 m``."""
+        urban plus thresholds scaled with the slot spacing, eq. (9) also across scan lines,
+        ``d_c = 0.5 m``, N_in-slice as the closest returns within 12 columns, the one-sided rule at
+        85 degrees and the column ground of :mod:`prc_slam.prc.ground` on spinning sensors."""
         presets: dict[str, dict[str, object]] = {
             "urban": {"mode": "urban", "k": 99, "xi_s": 1.0, "xi_p": 1.0, "A": 30, "gamma": 2},
             "forest": {"mode": "forest", "k": 255, "xi_s": 0.01, "xi_p": 0.01, "A": 30, "gamma": 2},
@@ -68,6 +100,9 @@ class PRCConfig(BaseModel):
                 "adaptive_incidence_deg": 89.0,
                 "gradient_axes": "both",
                 "d_c": 0.5,
+                "in_slice_reach": 12,
+                "one_sided_incidence_deg": 85.0,
+                "ground": "auto",
             },
         }
         if name not in presets:

@@ -13,16 +13,21 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def support_counts(ranges, xi_s, xi_p, half_in, wrap):
+def support_counts(ranges, xi_s, xi_p, half_in, wrap, reach=0):
     """Support counts of eqs. (5)-(8) (reference kernel: the pipeline uses the one-pass
     :func:`support_and_gradient`, which tests check against this one).
 
     ``C_adj`` counts neighbours ``j`` in N_adj-slice (eq. 7: columns ``h-1, h, h+1`` of the
     previous and next scan line) with ``|r_i - r_j| < xi_s``; ``C_in`` counts neighbours in
-    N_in-slice (eq. 8: ``h-half_in .. h+half_in`` without ``h`` in the same line) with
-    ``|r_i - r_j| < xi_p``. Slots without a return (range 0) neither get nor give support.
-    Per-slot thresholds are compared against ``max(xi_i, xi_j)`` so that ``delta_ij`` stays
-    symmetric; with scalar-valued arrays this is the paper's fixed threshold.
+    N_in-slice with ``|r_i - r_j| < xi_p``. Slots without a return (range 0) neither get nor
+    give support. Per-slot thresholds are compared against ``max(xi_i, xi_j)`` so that
+    ``delta_ij`` stays symmetric; with scalar-valued arrays this is the paper's fixed threshold.
+
+    N_in-slice (eq. 8) is ``h-half_in .. h+half_in`` without ``h`` when ``reach <= half_in``
+    (the paper's slots). With ``reach > half_in`` it is the eight closest range *measurements*
+    of the scan line as the paper's text words it: on each side the ``half_in`` nearest
+    returns within ``reach`` columns, skipping slots without a return (dropouts on dark or
+    grazing surfaces otherwise leave real returns without the support they have).
 
     Returns
     -------
@@ -31,6 +36,7 @@ def support_counts(ranges, xi_s, xi_p, half_in, wrap):
     R, C = ranges.shape
     c_adj = np.zeros((R, C), np.int8)
     c_in = np.zeros((R, C), np.int8)
+    span = max(reach, half_in)
     for r in range(R):
         for c in range(C):
             ri = ranges[r, c]
@@ -39,17 +45,22 @@ def support_counts(ranges, xi_s, xi_p, half_in, wrap):
             xs = xi_s[r, c]
             xp = xi_p[r, c]
             n_in = 0
-            for d in range(-half_in, half_in + 1):
-                if d == 0:
-                    continue
-                cc = c + d
-                if cc < 0 or cc >= C:
-                    if not wrap:
-                        continue
-                    cc = cc % C
-                rj = ranges[r, cc]
-                if rj > 0.0 and abs(ri - rj) < max(xp, xi_p[r, cc]):
-                    n_in += 1
+            for sgn in (-1, 1):
+                got = 0
+                for d in range(1, span + 1):
+                    if got == half_in:
+                        break
+                    cc = c + sgn * d
+                    if cc < 0 or cc >= C:
+                        if not wrap:
+                            break
+                        cc = cc % C
+                    rj = ranges[r, cc]
+                    if rj > 0.0:
+                        if span > half_in:
+                            got += 1
+                        if abs(ri - rj) < max(xp, xi_p[r, cc]):
+                            n_in += 1
             n_adj = 0
             for dr in (-1, 1):
                 rr = r + dr
@@ -69,23 +80,117 @@ def support_counts(ranges, xi_s, xi_p, half_in, wrap):
     return c_adj, c_in
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _support_met(ranges, r, c, xi_s, xi_p, half_in, need_in, need_adj, wrap, uniform, reach):
+    """Whether return ``(r, c)`` meets the in-slice and the adjacent-slice condition of eq. (4)
+    (see :func:`support_counts` for the neighbourhoods); counting stops as soon as each
+    outcome is decided, nearest neighbours first."""
+    R, C = ranges.shape
+    ri = ranges[r, c]
+    xs = xi_s[r, c]
+    xp = xi_p[r, c]
+    n_in = 0
+    if reach <= half_in:
+        interior = c - half_in >= 0 and c + half_in < C
+        left = 2 * half_in
+        for k in range(1, half_in + 1):
+            for sgn in (-1, 1):
+                cc = c + sgn * k
+                left -= 1
+                if not interior and (cc < 0 or cc >= C):
+                    if not wrap:
+                        continue
+                    cc = cc % C
+                rj = ranges[r, cc]
+                if rj > 0.0 and abs(ri - rj) < (xp if uniform else max(xp, xi_p[r, cc])):
+                    n_in += 1
+            if n_in >= need_in or n_in + left < need_in:
+                break
+    else:
+        got_l = 0
+        got_r = 0
+        for k in range(1, reach + 1):
+            for sgn in (-1, 1):
+                if (got_l if sgn < 0 else got_r) >= half_in:
+                    continue
+                cc = c + sgn * k
+                if cc < 0 or cc >= C:
+                    if not wrap:
+                        if sgn < 0:
+                            got_l = half_in
+                        else:
+                            got_r = half_in
+                        continue
+                    cc = cc % C
+                rj = ranges[r, cc]
+                if rj > 0.0:
+                    if sgn < 0:
+                        got_l += 1
+                    else:
+                        got_r += 1
+                    if abs(ri - rj) < (xp if uniform else max(xp, xi_p[r, cc])):
+                        n_in += 1
+            if n_in >= need_in or n_in + 2 * half_in - got_l - got_r < need_in:
+                break
+            if got_l >= half_in and got_r >= half_in:
+                break
+    in_ok = n_in >= need_in
+    n_adj = 0
+    for d in (0, -1, 1):
+        cc = c + d
+        if cc < 0 or cc >= C:
+            if not wrap:
+                continue
+            cc = cc % C
+        if r > 0:
+            rj = ranges[r - 1, cc]
+            if rj > 0.0 and abs(ri - rj) < (xs if uniform else max(xs, xi_s[r - 1, cc])):
+                n_adj += 1
+        if r + 1 < R:
+            rj = ranges[r + 1, cc]
+            if rj > 0.0 and abs(ri - rj) < (xs if uniform else max(xs, xi_s[r + 1, cc])):
+                n_adj += 1
+        if n_adj >= need_adj:
+            break
+    return in_ok, n_adj >= need_adj
+
+
 @njit(cache=True, nogil=True)
-def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, d_c, literal, wrap, both_axes, uniform):
+def support_and_gradient(
+    ranges,
+    xi_s,
+    xi_p,
+    half_in,
+    need_in,
+    need_adj,
+    alpha,
+    d_c,
+    literal,
+    wrap,
+    both_axes,
+    uniform,
+    reach,
+    xi_s2,
+    xi_p2,
+    second,
+):
     """``S_b`` of eq. (2) and ``G_b`` of eq. (9) in one pass over the block.
 
-    A return is supported when at least ``need_in`` in-slice and ``need_adj`` adjacent-slice
-    neighbours (eqs. 5-8) lie within the thresholds (``max(xi_i, xi_j)`` as in
-    :func:`support_counts`, whose result this equals); counting stops as soon as the outcome
-    is decided, nearest neighbours first. Supported points are then tested by eq. (9) as in
-    :func:`gradient_background`. ``uniform`` says the threshold arrays are constant, which
-    spares the neighbours' threshold loads.
+    A return is supported when it meets both conditions of eq. (4) (eqs. 5-8, neighbourhoods
+    and ``reach`` as in :func:`support_counts`, whose result this equals). Supported points
+    are then tested by eq. (9) as in :func:`gradient_background`. ``uniform`` says the
+    threshold arrays are constant, which spares the neighbours' threshold loads.
 
     Returns
     -------
     supported, grad : bool arrays, shape (rows, cols)
     one_sided : bool array, shape (rows, cols)
-        Returns that meet exactly one of the two conditions of eq. (4) (thin poles meet the
-        adjacent-slice one only); not supported, so labelled noise, but not isolated.
+        Unsupported returns (noise) that are not isolated. Without ``second``: those that meet
+        exactly one of the two conditions of eq. (4) (thin poles meet the adjacent-slice one
+        only). With ``second`` (our *one-sided rule*, beyond the paper): a second pass over the
+        unsupported returns only, asking for either condition under the stricter thresholds
+        ``xi_s2, xi_p2`` (ignored without ``second``), so that an outlier that met one
+        condition by chance under lenient thresholds is not spared.
     """
     R, C = ranges.shape
     sup = np.zeros((R, C), np.bool_)
@@ -96,44 +201,13 @@ def support_and_gradient(ranges, xi_s, xi_p, half_in, need_in, need_adj, alpha, 
             ri = ranges[r, c]
             if ri <= 0.0:
                 continue
-            xs = xi_s[r, c]
-            xp = xi_p[r, c]
-            interior = c - half_in >= 0 and c + half_in < C
-            n_in = 0
-            left = 2 * half_in
-            for k in range(1, half_in + 1):
-                for sgn in (-1, 1):
-                    cc = c + sgn * k
-                    left -= 1
-                    if not interior and (cc < 0 or cc >= C):
-                        if not wrap:
-                            continue
-                        cc = cc % C
-                    rj = ranges[r, cc]
-                    if rj > 0.0 and abs(ri - rj) < (xp if uniform else max(xp, xi_p[r, cc])):
-                        n_in += 1
-                if n_in >= need_in or n_in + left < need_in:
-                    break
-            in_ok = n_in >= need_in
-            n_adj = 0
-            for d in (0, -1, 1):
-                cc = c + d
-                if cc < 0 or cc >= C:
-                    if not wrap:
-                        continue
-                    cc = cc % C
-                if r > 0:
-                    rj = ranges[r - 1, cc]
-                    if rj > 0.0 and abs(ri - rj) < (xs if uniform else max(xs, xi_s[r - 1, cc])):
-                        n_adj += 1
-                if r + 1 < R:
-                    rj = ranges[r + 1, cc]
-                    if rj > 0.0 and abs(ri - rj) < (xs if uniform else max(xs, xi_s[r + 1, cc])):
-                        n_adj += 1
-                if n_adj >= need_adj:
-                    break
-            if not in_ok or n_adj < need_adj:
-                one_sided[r, c] = in_ok or n_adj >= need_adj
+            in_ok, adj_ok = _support_met(ranges, r, c, xi_s, xi_p, half_in, need_in, need_adj, wrap, uniform, reach)
+            if not in_ok or not adj_ok:
+                if second:
+                    in2, adj2 = _support_met(ranges, r, c, xi_s2, xi_p2, half_in, need_in, need_adj, wrap, False, reach)
+                    one_sided[r, c] = in2 or adj2
+                else:
+                    one_sided[r, c] = in_ok or adj_ok
                 continue
             sup[r, c] = True
             cm = c - 1
