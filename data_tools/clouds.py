@@ -1,5 +1,6 @@
 """Point-cloud files for map classification: LAS/LAZ (streamed in chunks with laspy; LAZ through
-the ``lazrs`` backend), PLY and PCD (Open3D), NPY (an ``(N, 3)`` array, memory-mapped).
+the ``lazrs`` backend), PCD (:mod:`data_tools.pcd`), PLY (Open3D), NPY (an ``(N, 3)`` array,
+memory-mapped).
 """
 
 from __future__ import annotations
@@ -80,8 +81,8 @@ def cloud_size(path: str | Path) -> int:
 def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarray]:
     """The cloud's coordinates as ``float64 (n, 3)`` chunks, in file order.
 
-    LAS/LAZ and NPY files are read chunk by chunk (NPY memory-mapped); PLY and PCD are read
-    whole by Open3D and then cut.
+    LAS/LAZ and NPY files are read chunk by chunk (NPY memory-mapped); PCD (our reader) and PLY
+    (Open3D) are read whole and then cut.
     """
     path = Path(path)
     if not path.is_file():
@@ -110,6 +111,11 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
             xyz = _check(path, np.load(path, mmap_mode="r"))
         except ValueError as e:
             raise DataError(f"{path}: not a readable .npy array ({e})") from e
+    elif suffix == ".pcd":  # our reader: any field type and layout, one-line errors
+        from data_tools.pcd import read_sweep_fields
+
+        fields = read_sweep_fields(path)[0]
+        xyz = np.column_stack([fields["x"], fields["y"], fields["z"]])
     else:
         xyz = _check(path, _open3d_points(path))
     for i in range(0, len(xyz), chunk):

@@ -390,3 +390,19 @@ def test_real_vlp16_pcd_uses_channel_and_time_fields():
     assert t is not None and np.ptp(t) == pytest.approx(span * 1e-9)
     labels = scan.per_point(classify_scan(scan, PRCConfig.preset("multibeam")))
     assert labels.shape == (14831,)
+
+
+def test_map_cloud_chunks_read_pcd(tmp_path):
+    """mapclass reads .pcd maps through the same reader (binary_compressed included)."""
+    from data_tools.clouds import cloud_chunks, cloud_size
+
+    fields = all_types_fields(1000, seed=4)
+    f = write_compressed_pcd(tmp_path / "map.pcd", fields)
+    chunks = list(cloud_chunks(f, chunk=300))
+    assert [len(c) for c in chunks] == [300, 300, 300, 100] and cloud_size(f) == 1000
+    np.testing.assert_array_equal(np.concatenate(chunks), np.column_stack([fields["x"], fields["y"], fields["z"]]))
+    bad = tmp_path / "bad.pcd"
+    bad.write_text(ASCII_PCD.replace("TYPE F F F U U F", "TYPE F F F Q U F"))
+    with pytest.raises(DataError, match="unknown PCD type 'Q'") as exc:
+        list(cloud_chunks(bad))
+    one_line(exc, bad)
