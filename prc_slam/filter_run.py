@@ -27,7 +27,7 @@ import numpy as np
 
 from prc_slam import labels as L
 from prc_slam.filtering import FilterConfig, filter_points
-from prc_slam.pipeline import classify_frames
+from prc_slam.pipeline import ClassifiedFrame, classify_frames
 from prc_slam.prc.config import PRCConfig
 from prc_slam.scan import Scan, ScanError
 
@@ -87,6 +87,95 @@ def _count(labels: np.ndarray) -> np.ndarray:
     return np.bincount(np.asarray(labels, dtype=np.uint8), minlength=256)
 
 
+class FilterSink:
+    """Filters every classified frame and hands the kept points to a stream writer; counts per
+    class in / kept. Usable as a :class:`prc_slam.pipeline.Sink` (``frame(step)``,
+    ``close(result)``) or directly (``add(frame)``).
+
+    Parameters
+    ----------
+    writer : object with ``write(scan, keep, labels)``, ``close()`` and ``format``
+        (``data_tools.stream_out.open_stream_writer``)
+    config : the filter policy
+    keep_labels : label codes; replaces the policy by "keep exactly these classes"
+    """
+
+    def __init__(self, writer: Any, config: FilterConfig, keep_labels: Sequence[int] | None = None) -> None:
+        self.writer = writer
+        self.config = config
+        self.keep_labels = None if keep_labels is None else sorted(set(int(c) for c in keep_labels))
+        self.n_in = np.zeros(256, np.int64)
+        self.n_kept = np.zeros(256, np.int64)
+        self.frames = 0
+        self.prc_seconds = 0.0
+        self.warnings: list[str] = []
+        self.n_warnings = 0
+        self.worst_collisions = 0.0
+        self.organised = False
+        self._closed = False
+
+    def add(self, frame: ClassifiedFrame) -> np.ndarray:
+        """Filter and write one frame; returns the keep mask (input order)."""
+        scan = frame.scan
+        labels = np.asarray(frame.point_labels(), dtype=np.uint8)
+        points = scan.points()
+        if len(points) != len(labels):
+            raise ScanError(f"{scan.source}: {len(labels)} labels for {len(points)} input points")
+        keep = choose_points(
+            points, labels, self.config, one_sided=frame.point_one_sided(), keep_labels=self.keep_labels
+        )
+        self.writer.write(scan, keep, labels)
+        self.n_in += _count(labels)
+        self.n_kept += _count(labels[keep])
+        self.prc_seconds += frame.seconds
+        self.frames += 1
+        org = scan.meta.get("organize")
+        if isinstance(org, dict):
+            self.organised = True
+            self.worst_collisions = max(self.worst_collisions, float(org.get("collisions_pct") or 0.0))
+            for w in org.get("warnings") or []:
+                self.n_warnings += 1
+                if len(self.warnings) < 20:
+                    self.warnings.append(f"{scan.name}: {w}")
+        return keep
+
+    def frame(self, step: Any) -> None:
+        """Sink protocol: one :class:`prc_slam.pipeline.PipelineFrame`."""
+        self.add(step.frame)
+
+    def close(self, result: Any = None) -> None:
+        """Finish the output (idempotent)."""
+        if not self._closed:
+            self._closed = True
+            self.writer.close()
+
+    def metrics(self) -> dict[str, Any]:
+        """Counts per class in / kept, the output and the policy (the ``filter`` metrics JSON)."""
+        n_in, n_kept = self.n_in, self.n_kept
+        present = np.flatnonzero(n_in)
+        out: dict[str, Any] = {
+            "frames": self.frames,
+            "points_in": int(n_in.sum()),
+            "points_kept": int(n_kept.sum()),
+            "kept_fraction": float(n_kept.sum() / n_in.sum()) if n_in.sum() else None,
+            "per_class": {
+                L.CODE_TO_NAME.get(int(c), f"code_{c}"): {"in": int(n_in[c]), "kept": int(n_kept[c])} for c in present
+            },
+            "out": str(getattr(self.writer, "out", "")),
+            "out_format": getattr(self.writer, "format", None),
+            "keep_labels": None if self.keep_labels is None else [L.CODE_TO_NAME[c] for c in self.keep_labels],
+            "policy": None if self.keep_labels is not None else self.config.model_dump(mode="json"),
+            "prc_seconds": self.prc_seconds,
+        }
+        if self.organised:
+            out["organize"] = {
+                "warnings": self.n_warnings,
+                "first_warnings": self.warnings,
+                "max_collisions_pct": self.worst_collisions,
+            }
+        return out
+
+
 def run_filter(
     dataset: Iterable[Scan],
     out: str | Path,
@@ -125,7 +214,6 @@ def run_filter(
         share over the run).
     """
     prc_cfg: PRCConfig = config.prc
-    filt_cfg: FilterConfig = config.filter
     codes = parse_keep_labels(keep_labels)
     if writer_factory is None:
         from data_tools.stream_out import open_stream_writer as writer_factory
@@ -136,61 +224,17 @@ def run_filter(
     from prc_slam.prc.algorithm import warm_up
 
     warm_up()
-    n_in = np.zeros(256, np.int64)
-    n_kept = np.zeros(256, np.int64)
-    frames = 0
-    prc_seconds = 0.0
-    warnings: list[str] = []
-    n_warnings = 0
-    worst_collisions = 0.0
-    organised = False
     t0 = time.perf_counter()
     writer = writer_factory(Path(out), dataset, out_format, label_dtype=label_dtype, overwrite=overwrite)
+    sink = FilterSink(writer, config.filter, codes)
     try:
         for frame in classify_frames(dataset, prc_cfg):
-            scan = frame.scan
-            labels = np.asarray(frame.point_labels(), dtype=np.uint8)
-            points = scan.points()
-            if len(points) != len(labels):
-                raise ScanError(f"{scan.source}: {len(labels)} labels for {len(points)} input points")
-            keep = choose_points(points, labels, filt_cfg, one_sided=frame.point_one_sided(), keep_labels=codes)
-            writer.write(scan, keep, labels)
-            n_in += _count(labels)
-            n_kept += _count(labels[keep])
-            prc_seconds += frame.seconds
-            frames += 1
-            org = scan.meta.get("organize")
-            if isinstance(org, dict):
-                organised = True
-                worst_collisions = max(worst_collisions, float(org.get("collisions_pct") or 0.0))
-                for w in org.get("warnings") or []:
-                    n_warnings += 1
-                    if w not in warnings and len(warnings) < 20:
-                        warnings.append(f"{scan.name}: {w}")
+            sink.add(frame)
             if progress is not None:
-                progress(frames, total)
+                progress(sink.frames, total)
     finally:
-        writer.close()
-    present = np.flatnonzero(n_in)
-    result: dict[str, Any] = {
-        "frames": frames,
-        "points_in": int(n_in.sum()),
-        "points_kept": int(n_kept.sum()),
-        "kept_fraction": float(n_kept.sum() / n_in.sum()) if n_in.sum() else None,
-        "per_class": {
-            L.CODE_TO_NAME.get(int(c), f"code_{c}"): {"in": int(n_in[c]), "kept": int(n_kept[c])} for c in present
-        },
-        "out": str(out),
-        "out_format": getattr(writer, "format", out_format),
-        "keep_labels": None if codes is None else [L.CODE_TO_NAME[c] for c in codes],
-        "policy": None if codes is not None else filt_cfg.model_dump(mode="json"),
-        "seconds": time.perf_counter() - t0,
-        "prc_seconds": prc_seconds,
-    }
-    if organised:
-        result["organize"] = {
-            "warnings": n_warnings,
-            "first_warnings": warnings,
-            "max_collisions_pct": worst_collisions,
-        }
+        sink.close()
+    result = sink.metrics()
+    result["out"] = str(out)
+    result["seconds"] = time.perf_counter() - t0
     return result

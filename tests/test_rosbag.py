@@ -476,3 +476,42 @@ def test_field_outside_point_step_is_an_error():
 
     with pytest.raises(DataError, match="outside point_step 12"):
         fields_dtype(bad.fields, bad.point_step, False, "x.bag")
+
+
+def test_filter_sink_in_the_pipeline_writes_what_run_filter_writes(layout_bags, tmp_path):
+    from prc_slam.filter_run import FilterSink
+    from prc_slam.pipeline import Pipeline
+
+    path, _built, _model, _frames = layout_bags["velodyne"]
+    config = Config()
+    a = run_filter(open_dataset(path), tmp_path / "a.mcap", config)
+    sink = FilterSink(open_stream_writer(tmp_path / "b.mcap", open_dataset(path)), config.filter)
+    Pipeline(prc=config.prc, sinks=[sink]).run(open_dataset(path))
+    b = sink.metrics()
+    assert b["per_class"] == a["per_class"] and b["frames"] == a["frames"] == 2
+    for (_ta, ca), (_tb, cb) in zip(
+        RosbagSequence(tmp_path / "a.mcap").clouds(), RosbagSequence(tmp_path / "b.mcap").clouds(), strict=True
+    ):
+        np.testing.assert_array_equal(ca.raw, cb.raw)
+
+
+def test_pcd_folder_in_pcd_folder_out_keeps_the_input_fields(layout_bags, tmp_path):
+    from data_tools.pcd import read_pcd, write_pcd
+
+    _path, built, _model, _frames = layout_bags["velodyne"]
+    src = tmp_path / "sweeps"
+    for i, (cloud, _slots) in enumerate(built):
+        write_pcd(src / f"{i:06d}.pcd", {name: cloud.points[name] for name in cloud.names})
+    seq = open_dataset(src)
+    assert seq.format == "pcd"
+    m = run_filter(seq, tmp_path / "out", Config())
+    assert m["out_format"] == "pcd" and m["frames"] == 2
+    expected = [
+        choose_points(cf.scan.points(), cf.point_labels(), Config().filter, one_sided=cf.point_one_sided())
+        for cf in classify_frames(open_dataset(src), Config().prc)
+    ]
+    for (cloud, _slots), keep, out in zip(built, expected, sorted((tmp_path / "out").glob("*.pcd")), strict=True):
+        fields, _shape = read_pcd(out)
+        assert list(fields) == [*cloud.names, "label"]
+        for name in cloud.names:
+            np.testing.assert_array_equal(fields[name], cloud.points[name][keep])
