@@ -5,19 +5,19 @@ __version__ = "0.1.0"
 
 def _choose_numba_threading_layer() -> None:
     """numba's default tries TBB first and warns when the TBB it finds (pulled in by other
-    packages) is too old: take OpenMP when numba has it, else its own work queue."""
+    packages) is too old: take OpenMP when numba has it, else its own work queue. Set through
+    ``NUMBA_THREADING_LAYER`` before numba is imported, without importing it (importing the
+    package stays cheap, so the command line can take Ctrl-C cleanly while it loads)."""
     import os
+    from importlib.util import find_spec
+    from pathlib import Path
 
     if "NUMBA_THREADING_LAYER" in os.environ:
         return
-    from numba import config
-
-    try:
-        from numba.np.ufunc import omppool  # noqa: F401
-
-        config.THREADING_LAYER = "omp"
-    except ImportError:
-        config.THREADING_LAYER = "workqueue"
+    spec = find_spec("numba")
+    roots = [] if spec is None or spec.submodule_search_locations is None else spec.submodule_search_locations
+    has_omp = any(any((Path(r) / "np" / "ufunc").glob("omppool*")) for r in roots)
+    os.environ["NUMBA_THREADING_LAYER"] = "omp" if has_omp else "workqueue"
 
 
 _choose_numba_threading_layer()

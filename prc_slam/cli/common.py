@@ -10,11 +10,14 @@ from enum import Enum
 from pathlib import Path
 from typing import Any, TypeVar
 
-import click
 import typer
 from rich.console import Console
-from rich.logging import RichHandler
 from rich.table import Table
+
+try:  # typer >= 0.2x carries its own copy of click
+    from typer._click import exceptions as _click
+except ImportError:  # pragma: no cover - older typer on click
+    from click import exceptions as _click
 
 console = Console(stderr=True, soft_wrap=True)
 log = logging.getLogger("prc_slam")
@@ -71,7 +74,7 @@ def interrupted_by_user(exc: BaseException) -> bool:
     ``ImportError: initialization failed`` when interrupted while loading)."""
     seen = set()
     while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt | click.exceptions.Abort):
+        if isinstance(exc, KeyboardInterrupt | typer.Abort):
             return True
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
@@ -86,7 +89,7 @@ def handles_errors(fn: F) -> F:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             return fn(*args, **kwargs)
-        except (typer.Exit, click.exceptions.Exit):
+        except typer.Exit:
             raise
         except BaseException as exc:
             if interrupted_by_user(exc):
@@ -104,25 +107,37 @@ class OneLineGroup(typer.core.TyperGroup):
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):  # type: ignore[override]
         try:
             rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var, standalone_mode=False, **extra)
-        except click.exceptions.NoArgsIsHelpError as exc:
-            click.echo(exc.ctx.get_help() if exc.ctx else str(exc))
+        except _click.NoArgsIsHelpError:  # the help is already printed
             rv = 0
-        except click.UsageError as exc:
+        except _click.UsageError as exc:
             param = getattr(exc, "param", None)
             message = exc.format_message()
             if param is not None and getattr(param, "opts", None) and param.opts[0] not in message:
                 message = f"{param.opts[0]}: {message}"
             console.print(f"[red]error:[/red] {message}", highlight=False)
             rv = 2
-        except click.ClickException as exc:
+        except _click.ClickException as exc:
             console.print(f"[red]error:[/red] {exc.format_message()}", highlight=False)
             rv = exc.exit_code
-        except (click.exceptions.Abort, KeyboardInterrupt):
+        except (typer.Abort, KeyboardInterrupt):
             console.print("[red]error:[/red] interrupted", highlight=False)
             rv = 130
         if standalone_mode:
             sys.exit(rv or 0)
         return rv
+
+
+class ConsoleHandler(logging.Handler):
+    """Log records as plain, unwrapped lines on standard error (``warning: ...`` for warnings)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = record.getMessage()
+            if record.levelno >= logging.WARNING:
+                text = f"{record.levelname.lower()}: {text}"
+            console.print(text, markup=False, highlight=False, soft_wrap=True)
+        except Exception:  # pragma: no cover - logging must never raise
+            self.handleError(record)
 
 
 def setup_logging(log_file: Path | None, quiet: bool) -> None:
@@ -132,7 +147,7 @@ def setup_logging(log_file: Path | None, quiet: bool) -> None:
         root.removeHandler(h)
     root.setLevel(logging.INFO)
     root.propagate = False
-    handler = RichHandler(console=console, show_time=False, show_path=False, show_level=True, markup=False)
+    handler = ConsoleHandler()
     handler.setLevel(logging.WARNING if quiet else logging.INFO)
     root.addHandler(handler)
     if log_file is not None:
@@ -234,6 +249,8 @@ MAP_VOXEL_OPT = typer.Option(0.5, "--map-voxel", min=0.0, help="thin the logged 
 SERVE_SECONDS_OPT = typer.Option(
     None, "--serve-seconds", min=0.0, help="with --serve-web: stop serving after this long"
 )
+WEB_PORT_OPT = typer.Option(None, "--web-port", min=1, max=65535, help="with --serve-web: HTTP port (default 9090)")
+GRPC_PORT_OPT = typer.Option(None, "--grpc-port", min=1, max=65535, help="with --serve-web: stream port (default 9876)")
 FORMAT_OPT = typer.Option(None, "--format", help="input format (default: detected)")
 MAX_FRAMES_OPT = typer.Option(None, "--max-frames", min=1, help="use only the first N frames")
 JSON_OPT = typer.Option(None, "--json", help="write the metrics JSON here")

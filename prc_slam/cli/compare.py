@@ -11,12 +11,14 @@ from prc_slam.cli.common import (
     CONNECT_OPT,
     EVERY_OPT,
     FORMAT_OPT,
+    GRPC_PORT_OPT,
     JSON_OPT,
     MAP_VOXEL_OPT,
     MAX_FRAMES_OPT,
     RRD_OPT,
     SERVE_OPT,
     SERVE_SECONDS_OPT,
+    WEB_PORT_OPT,
     Mode,
     Preset,
     class_table,
@@ -69,6 +71,8 @@ def compare(
     log_every: int = EVERY_OPT,
     map_voxel: float = MAP_VOXEL_OPT,
     serve_seconds: float | None = SERVE_SECONDS_OPT,
+    web_port: int | None = WEB_PORT_OPT,
+    grpc_port: int | None = GRPC_PORT_OPT,
     mapclass: bool = typer.Option(False, "--mapclass", help="also classify the run's map (paper 004) vs PRC"),
     mapclass_every: int = typer.Option(5, min=1, help="with --mapclass: accumulate every n-th frame"),
 ) -> None:
@@ -84,7 +88,10 @@ def compare(
     names = variant_list(variants)
     cfg = run_config(preset, config, mode)
     cfg.odometry.deskew = cfg.odometry.deskew and deskew
-    viewer = Viewer(rrd, connect, serve_web, log_every, serve_seconds=serve_seconds, map_voxel=map_voxel)
+    viewer = Viewer(
+        rrd, connect, serve_web, log_every, serve_seconds=serve_seconds, map_voxel=map_voxel, web_port=web_port,
+        grpc_port=grpc_port,
+    )  # fmt: skip
     with progress() as reporter:
         run, prc_labels = run_odometry(
             input, cfg, names, fmt=fmt, max_frames=max_frames, online=online, score_prc=True, viewer=viewer,

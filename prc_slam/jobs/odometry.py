@@ -144,21 +144,19 @@ def _legacy(input, config, variants, fmt, max_frames, viewer, reporter, open_opt
 def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> list[Path]:
     """report.md, metrics.json, trajectories (KITTI and TUM), config.yaml and trajectories.png."""
     from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
-    from prc_slam.report import write_compare_outputs
+    from prc_slam.report import classification_section, write_compare_outputs
 
     metrics = write_compare_outputs(run.result, config, out, title, write_kitti_poses, write_tum_poses)
     extra = {k: v for k, v in run.metrics.items() if k != "variants"}
     if extra:
         metrics.update(extra)
         write_json(out / "metrics.json", metrics)
-    if run.prc is not None or run.online is not None:
-        from prc_slam.report import classification_section
-
-        with (out / "report.md").open("a") as f:
-            if run.prc is not None:
-                f.write(classification_section(run.prc, "PRC labels against the reference"))
-            if run.online is not None:
-                f.write(classification_section(run.online, "Online detectors against the reference"))
+    with (out / "report.md").open("a") as f:
+        f.write("\n![trajectories](trajectories.png)\n")
+        if run.prc is not None:
+            f.write(classification_section(run.prc, "PRC labels against the reference"))
+        if run.online is not None:
+            f.write(classification_section(run.online, "Online detectors against the reference"))
     run.metrics = metrics
     return [out / "report.md", out / "metrics.json", out / "trajectories.png", out / "config.yaml"]
 

@@ -63,16 +63,27 @@ def annotation_context() -> rr.AnnotationContext:
 
 
 def default_blueprint() -> rrb.Blueprint:
-    """3-D view beside the range images, time series and the text log."""
+    """3-D view beside the range images, three time series with their own axes (stage times in
+    ms; points per class; ICP threshold and position error in m) and the text log."""
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(name="world", origin="world"),
             rrb.Vertical(
                 rrb.Spatial2DView(name="range", origin="range_image/range"),
                 rrb.Spatial2DView(name="PRC labels", origin="range_image", contents=["range_image/prc"]),
-                rrb.TimeSeriesView(name="metrics", origin="metrics"),
+                rrb.Vertical(
+                    rrb.TimeSeriesView(name="stage times (ms)", origin="metrics/ms"),
+                    rrb.TimeSeriesView(
+                        name="points", origin="metrics", contents=["metrics/points/**", "metrics/points_to_icp/**"]
+                    ),
+                    rrb.TimeSeriesView(
+                        name="ICP threshold, error (m)",
+                        origin="metrics",
+                        contents=["metrics/icp_threshold/**", "metrics/error/**", "metrics/icp/**"],
+                    ),
+                ),
                 rrb.TextLogView(name="log", origin="logs"),
-                row_shares=[1, 1, 2, 1],
+                row_shares=[1, 1, 3, 1],
             ),
             column_shares=[3, 2],
         ),
@@ -288,6 +299,8 @@ def open_recording(
         raise ValueError("choose at least one of rrd, connect, serve_web or spawn")
     rec.set_sinks(*sinks, default_blueprint=default_blueprint())
     if serve_web:
-        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=server.uri)
-        address = f"http://localhost:{web_port or 9090}/?url={server.uri}"
+        # the server listens on every interface; a browser must be sent to an address it can reach
+        uri = server.uri.replace("://0.0.0.0:", "://127.0.0.1:")
+        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=uri)
+        address = f"http://localhost:{web_port or 9090}/?url={uri}"
     return rec, address
