@@ -13,6 +13,7 @@ the capture is opened. Reading in order streams the file once; going back reopen
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import struct
 from collections.abc import Iterator
@@ -225,12 +226,57 @@ class VelodynePcapSequence(SequenceBase):
         i %= self._n
         xyz = np.column_stack([pts["x"], pts["y"], pts["z"]]).astype(np.float32)
         times = stamp + np.asarray(pts["time"], dtype=np.float64)
-        return self.organizer.scan(
-            xyz,
-            ring=np.asarray(pts["ring"]).astype(np.int64),
-            times=times,
-            intensity=np.asarray(pts["intensity"], dtype=np.float32),
+        ring = np.asarray(pts["ring"]).astype(np.int64)
+        intensity = np.asarray(pts["intensity"], dtype=np.float32)
+        primary, partner = primary_returns(ring, np.asarray(pts["column"]), np.asarray(pts["return_type"]))
+        src = f"{self.root}#sweep {i}"
+        if primary.all():
+            return self.organizer.scan(
+                xyz, ring=ring, times=times, intensity=intensity, name=f"{i:06d}", source=src, frame_time=stamp
+            )
+        # dual return: the range image holds one return per firing (the strongest); the other
+        # return of the same firing shares its slot, so it gets the same label back
+        scan = self.organizer.scan(
+            xyz[primary],
+            ring=ring[primary],
+            times=times[primary],
+            intensity=intensity[primary],
             name=f"{i:06d}",
-            source=f"{self.root}#sweep {i}",
+            source=src,
             frame_time=stamp,
         )
+        pos = np.cumsum(primary) - 1  # index of each primary point in the organised subset
+        slot = np.asarray(scan.point_slot)[pos[partner]]
+        cloud = np.asarray(scan.cloud)
+        full = np.empty((len(xyz), 3), dtype=cloud.dtype)
+        full[primary] = cloud
+        full[~primary] = xyz[~primary]
+        meta = {**scan.meta, "second_returns": int((~primary).sum())}
+        return dataclasses.replace(scan, cloud=full, point_slot=slot, meta=meta)
+
+
+def primary_returns(ring: np.ndarray, column: np.ndarray, return_type: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One return per firing of each laser (dual-return modes emit two).
+
+    Returns
+    -------
+    primary : bool (N,)
+        The point kept in the range image for its (column, ring) firing: the first in decoding
+        order that is not a ``LAST``-only return when there is one (the strongest, as in
+        single-return mode).
+    partner : int64 (N,)
+        Index of the primary point of each point's firing (itself for a primary point).
+    """
+    n = len(ring)
+    key = np.asarray(column, np.int64) * 4096 + np.asarray(ring, np.int64)
+    last_only = np.asarray(return_type) == 2  # velodyne_decoder ReturnMode.LAST
+    order = np.lexsort((np.arange(n), last_only, key))
+    sk = key[order]
+    first = np.ones(n, bool)
+    first[1:] = sk[1:] != sk[:-1]
+    group = np.cumsum(first) - 1
+    head = order[first]
+    partner = np.empty(n, np.int64)
+    partner[order] = head[group]
+    primary = partner == np.arange(n)
+    return primary, partner

@@ -283,3 +283,63 @@ def test_missing_range_channel_is_a_clear_error(pcap_files):
     with pytest.raises(DataError, match="has no RANGE2 channel") as exc:
         OusterPcapSequence(pcap_files[0], field="RANGE2")
     _one_line_error(exc, pcap_files[0])
+
+
+def vlp16_dual_stream(n_sweeps: float = 1.3, rpm: float = 600.0):
+    """A VLP-16 in dual-return mode (0x39): blocks in pairs at one azimuth, last return first,
+    then the strongest. On every third laser the last return lies 2 m behind the strongest
+    (e.g. through foliage); elsewhere both are the same (decoded once, as BOTH)."""
+    deg_per_s = rpm / 60.0 * 360.0
+    pair_dt = 2 * FIRING
+    pairs = int(n_sweeps * 60.0 / rpm / pair_dt) // 6 * 6
+    payloads, stamps = [], []
+    for p0 in range(0, pairs, 6):
+        buf = bytearray()
+        for j in range(p0, p0 + 6):
+            az = (j * pair_dt * deg_per_s + 10.0) % 360.0
+            for last in (True, False):
+                buf += b"\xff\xee" + struct.pack("<H", round(az * 100) % 36000)
+                for _ in range(2):
+                    for k in range(16):
+                        r = 12.0 if last and k % 3 == 0 else 10.0
+                        buf += struct.pack("<HB", int(r / 0.002), 50 if last else 100)
+        buf += struct.pack("<IBB", int(p0 * pair_dt * 1e6), 0x39, 0x22)
+        payloads.append(bytes(buf))
+        stamps.append(1.0e9 + p0 * pair_dt)
+    return payloads, stamps
+
+
+def test_velodyne_dual_return_shares_slots(tmp_path):
+    """Dual return: the range image holds one return per firing (the strongest); the last
+    return of the same firing shares its slot and label, and does not count as a collision."""
+    pytest.importorskip("velodyne_decoder", reason="velodyne-decoder is not installed")
+    path = write_pcap(tmp_path / "dual.pcap", *vlp16_dual_stream())
+    ds = open_dataset(path)
+    pts = ds.sweep(0)[1]
+    scan = ds[0]
+    n = len(pts)
+    assert scan.n_points == n and scan.points().shape == (n, 3)
+    last = pts["return_type"] == 2
+    assert last.sum() == scan.meta["second_returns"] > 0.2 * n
+    assert scan.meta["organize"]["collisions_pct"] < 5.0 and not scan.meta["organize"]["warnings"]
+    key = pts["column"].astype(np.int64) * 4096 + pts["ring"]
+    strongest = ~last
+    partner = dict(zip(key[strongest].tolist(), np.flatnonzero(strongest).tolist(), strict=True))
+    partner_of_last = np.array([partner[k] for k in key[last].tolist()])
+    np.testing.assert_array_equal(scan.point_slot[last], scan.point_slot[partner_of_last])
+    # the image holds the strongest returns (10 m), never the last ones (12 m)
+    held = scan.ranges.ravel()[scan.point_slot[last]]
+    assert np.abs(held - 10.0).max() < 0.01
+    labels = scan.per_point(classify_scan(scan, PRCConfig.preset("multibeam")))
+    assert labels.shape == (n,)
+    np.testing.assert_array_equal(labels[last], labels[partner_of_last])
+
+
+def test_primary_returns_hand_computed():
+    from data_tools.velodyne_pcap import primary_returns
+
+    # firing (column 0, ring 0): LAST then STRONGEST -> the strongest is kept, the last shares it;
+    # (0, 1): BOTH; (1, 0): a LAST return alone is kept
+    primary, partner = primary_returns(np.array([0, 0, 1, 0]), np.array([0, 0, 0, 1]), np.array([2, 1, 3, 2]))
+    np.testing.assert_array_equal(primary, [False, True, True, True])
+    np.testing.assert_array_equal(partner, [1, 1, 2, 3])
