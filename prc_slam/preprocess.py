@@ -160,7 +160,7 @@ class PRCKissICP(_kiss_icp_base()):  # type: ignore[misc]
     --------
     >>> from kiss_icp.config import load_config
     >>> from prc_slam import PRCKissICP
-    >>> odometry = PRCKissICP(load_config(None, max_range=100.0))  # doctest: +SKIP
+    >>> odometry = PRCKissICP(load_config(None))  # doctest: +SKIP
     >>> odometry.register_frame(points, timestamps)  # doctest: +SKIP
     >>> odometry.last_pose  # doctest: +SKIP
     """
