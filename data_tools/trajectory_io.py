@@ -8,6 +8,7 @@ import numpy as np
 
 from data_tools.errors import DataError
 from data_tools.kitti import read_kitti_poses
+from data_tools.textfiles import read_numeric_table
 
 
 def write_kitti_poses(path: str | Path, poses: np.ndarray) -> None:
@@ -84,12 +85,7 @@ def write_tum_poses(path: str | Path, times: np.ndarray, poses: np.ndarray) -> N
 
 def read_tum_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Times ``(n,)`` and poses ``(n, 4, 4)`` of a TUM file."""
-    try:
-        data = np.loadtxt(path, ndmin=2, comments="#")
-    except (OSError, ValueError) as exc:
-        raise DataError(f"{path}: cannot read TUM poses: {exc}") from exc
-    if data.size and data.shape[1] != 8:
-        raise DataError(f"{path}: {data.shape[1]} values per line, expected 8 (t x y z qx qy qz qw)")
+    data = read_numeric_table(path, 8, "TUM poses (t x y z qx qy qz qw)")
     poses = np.tile(np.eye(4), (len(data), 1, 1))
     if len(data):
         poses[:, :3, :3] = _matrix_from_quat(data[:, 4:8])
