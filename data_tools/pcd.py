@@ -423,8 +423,10 @@ def times_in_seconds(values: np.ndarray, name: str, source: str) -> tuple[np.nda
             break
     else:
         raise DataError(f"{source}: time field {name!r} spans {span:g} units: not one sweep in s, ms, us or ns")
-    if scale != 1.0:
-        log.debug("%s: time field %r read in units of %g s", source, name, scale)
+    if scale != 1.0 and np.asarray(values).dtype.kind == "f":  # drivers' float times are seconds
+        log.warning(
+            "%s: float time field %r spans %g: read in units of %g s (a sweep lasts < 1 s)", source, name, span, scale
+        )
     return t * scale, scale
 
 
