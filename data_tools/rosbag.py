@@ -314,8 +314,14 @@ def detect_time_field(cloud: CloudMessage, period: float | None) -> TimeField | 
 
 
 def cloud_xyz(cloud: CloudMessage) -> np.ndarray:
-    """``float64 (N, 3)`` coordinates in input order (non-finite values kept: no returns)."""
-    return np.column_stack([_column(cloud.points, c).astype(np.float64) for c in "xyz"])
+    """``(N, 3)`` coordinates in input order (non-finite values kept: no returns); float32 when
+    the three fields are float32, else float64."""
+    pts = cloud.points
+    single = all(pts.dtype.fields[c][0].base.str[1:] == "f4" for c in "xyz")
+    out = np.empty((len(pts), 3), dtype=np.float32 if single else np.float64)
+    for k, c in enumerate("xyz"):
+        out[:, k] = _column(pts, c)
+    return out
 
 
 def cloud_to_scan(
