@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from prc_slam.prc.config import PRCConfig
 from prc_slam.prc import prc_block
+from prc_slam.prc.config import PRCConfig
 
 PAPER_PRC_POINTS_PER_S = 0.13e6  # Lehtola et al. 2019, Sec. IV-D (urban)
 PAPER_MAPCLASS_S_PER_MILLION = 1.04  # Wolf et al. 2019, Table 1 (urban area, classification)
@@ -211,6 +211,255 @@ def bench_mapclass(frames: int = 50, repeat: int = 2) -> dict[str, Any]:
     }
 
 
+def _prf(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """Precision, recall and F1 of boolean predictions."""
+    tp = float((pred & truth).sum())
+    p = tp / max(float(pred.sum()), 1.0)
+    r = tp / max(float(truth.sum()), 1.0)
+    return {"precision": p, "recall": r, "f1": 2 * p * r / max(p + r, 1e-12)}
+
+
+def lowest_ring_plane(points: np.ndarray) -> np.ndarray:
+    """Plane ``n . p + d = 0`` (``n_z > 0``) through the points of the lowest ring: least squares,
+    refitted on the points within 0.3 m (the peers section's sanity reference)."""
+    near = np.ones(len(points), dtype=bool)
+    plane = np.array([0.0, 0.0, 1.0, -float(np.median(points[:, 2]))])
+    for _ in range(3):
+        p = points[near].astype(np.float64)
+        if len(p) < 3:
+            break
+        a = np.column_stack([p[:, 0], p[:, 1], np.ones(len(p))])
+        coef = np.linalg.lstsq(a, p[:, 2], rcond=None)[0]
+        n = np.array([-coef[0], -coef[1], 1.0])
+        plane = np.array([*(n / np.linalg.norm(n)), -coef[2] / np.linalg.norm(n)])
+        near = np.abs(points @ plane[:3] + plane[3]) < 0.3
+    return plane
+
+
+def reference_ring(points: np.ndarray, ring: np.ndarray, min_range: float = 3.0) -> tuple[int | None, np.ndarray]:
+    """The lowest ring that reaches past the platform: from the ring with the lowest median
+    elevation up, the first with at least 50 returns below the sensor farther than ``min_range``
+    horizontally (lower rings of a roof-mounted sensor hit the vehicle or the mount). Returns
+    its index and the mask of those returns (``None`` and an empty mask when no ring has them)."""
+    rho = np.hypot(points[:, 0], points[:, 1])
+    elev = np.arctan2(points[:, 2], np.maximum(rho, 1e-9))
+    rings = np.unique(ring)
+    med = np.array([np.median(elev[ring == r]) for r in rings])  # one median per ring
+    for r in rings[np.argsort(med)]:
+        m = (ring == r) & (rho > min_range) & (points[:, 2] < 0)
+        if m.sum() >= 50:
+            return int(r), m
+    return None, np.zeros(len(points), dtype=bool)
+
+
+def _interleaved(fns: dict[str, Callable[[], object]], repeat: int) -> dict[str, float]:
+    """Median seconds of each function, run in turn ``repeat`` times (fair on a drifting machine)."""
+    times: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(repeat):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+    return {k: float(np.median(v)) for k, v in times.items()}
+
+
+def bench_peers(
+    kitti_dir: Path | None = None,
+    sweeps: list[Path] | None = None,
+    noise_frames: int = 6,
+    outlier_rate: float = 0.05,
+    repeat: int = 5,
+) -> dict[str, Any]:
+    """PRC beside the tools users pick instead (issue 15), in one process.
+
+    * ``ground``: KITTI frames with SemanticKITTI labels, PRC (``multibeam``) vs Patchwork++:
+      ground precision/recall/F1, PRC's solid classes called noise, ms per frame (PRC also with
+      the organiser's time, from the points to the range image), and the ground count of every
+      frame against the sequence median; ``ground_steps``: F1 of each step of the column ground.
+    * ``noise``: a simulated hdl64 drive with ``outlier_rate`` outliers, PRC's dropped noise (noise
+      not one-sided, what the filter removes) vs Open3D SOR (20, 2.0) and ROR (0.5 m, 2): P/R/F1
+      against the simulator's noise labels, share of real returns removed, ms per frame.
+    * ``sweeps``: unlabelled sweeps (Ouster npz, PCDs of other sensors): ground share of PRC and
+      Patchwork++ (given the sensor height from the reference plane), and the share of each
+      one's ground within 0.3 m of the plane fitted to the lowest ring that reaches past the
+      platform (:func:`reference_ring`).
+
+    Sections whose data or peer is missing are reported as ``{"skipped": reason}``.
+    """
+    from data_tools import open_dataset
+    from prc_slam import labels as L
+    from prc_slam import peers
+    from prc_slam.prc.algorithm import warm_up
+    from prc_slam.prc.ground import GroundState, column_ground
+    from prc_slam.scoring import SOLID_CLASSES
+
+    warm_up()
+    cfg = PRCConfig.preset("multibeam")
+    out: dict[str, Any] = {"prc_preset": "multibeam"}
+    try:
+        patchwork = peers.PatchworkGround()
+    except peers.PeerUnavailable as exc:
+        patchwork = None
+        out["patchwork_skipped"] = str(exc)
+
+    # -- ground on KITTI
+    if kitti_dir is None or not (Path(kitti_dir) / "velodyne").is_dir():
+        out["ground"] = {"skipped": f"no KITTI sequence at {kitti_dir}"}
+    else:
+        from data_tools.kitti import read_velodyne_bin
+
+        ds = open_dataset(kitti_dir)
+        n = len(ds)
+        pw_seq = peers.PatchworkGround() if patchwork is not None else None
+        gstate = GroundState()
+        counts: dict[str, list[int]] = {"prc": [], "patchwork": []}
+        pred: dict[str, list[np.ndarray]] = {"prc": [], "patchwork": []}
+        truth, solid_noise, solid = [], 0, 0
+        steps: dict[str, list[np.ndarray]] = {"seed": [], "seed_cells": [], "seed_cells_segments": []}
+        times: dict[str, list[float]] = {"read_ms": [], "read_organise_ms": [], "prc_ms": [], "patchwork_ms": []}
+        for i in range(n):
+            path = ds.files[i] if hasattr(ds, "files") else None
+            scan = ds[i]
+            pts = scan.points()
+            res = prc_block(scan.ranges, cfg, sensor=scan.sensor, wrap=True, ground_state=gstate)
+            g_prc = scan.per_point(res.labels) == L.GROUND
+            counts["prc"].append(int(g_prc.sum()))
+            pw_pts = read_velodyne_bin(path) if path is not None else pts  # with remission: Patchwork++'s RNR
+            if pw_seq is not None:
+                g_pw = pw_seq(pw_pts)
+                counts["patchwork"].append(int(g_pw.sum()))
+            ref = scan.reference_labels()
+            if ref is None:
+                continue
+            truth.append(ref == L.GROUND)
+            pred["prc"].append(g_prc)
+            if pw_seq is not None:
+                pred["patchwork"].append(peers.PatchworkGround()(pw_pts))  # one frame on its own
+            sm = np.isin(ref, SOLID_CLASSES)
+            solid += int(sm.sum())
+            solid_noise += int((sm & (scan.per_point(res.labels) == L.NOISE)).sum())
+            # the column ground step by step (same support and segments)
+            xyz, ok = scan.sensor.to_xyz(scan.ranges), res.supported | res.one_sided
+            alt = getattr(scan.sensor, "altitude", None)
+            for name, st in (
+                ("seed", ("seed",)),
+                ("seed_cells", ("seed", "cells")),
+                ("seed_cells_segments", ("seed", "cells", "segments")),
+            ):
+                gr = column_ground(xyz, ok, cfg, altitude=alt, segments=res.segments, smooth=res.smooth, steps=st)
+                steps[name].append(scan.per_point(gr.ground))
+            # timing, interleaved: read alone, read + organise, PRC, Patchwork++
+            fns: dict[str, Callable[[], object]] = {
+                "read_organise_ms": lambda i=i: ds[i],
+                "prc_ms": lambda s=scan: prc_block(s.ranges, cfg, sensor=s.sensor, wrap=True),
+            }
+            if path is not None:
+                fns["read_ms"] = lambda p=path: read_velodyne_bin(p)
+            if patchwork is not None:
+                fns["patchwork_ms"] = lambda p=pw_pts: patchwork(p)
+            for k, v in _interleaved(fns, repeat).items():
+                times[k].append(v * 1e3)
+        t_all = np.concatenate(truth) if truth else np.zeros(0, bool)
+        ground: dict[str, Any] = {"frames_labelled": len(truth), "frames": n}
+        for k in ("prc", "patchwork"):
+            if pred[k]:
+                ground[k] = _prf(np.concatenate(pred[k]), t_all)
+            if counts[k]:
+                c = np.array(counts[k], dtype=float)
+                med = float(np.median(c))
+                ground[f"{k}_counts"] = [int(x) for x in c]
+                ground[f"{k}_count_dev_pct"] = [float((c.min() - med) / med * 100), float((c.max() - med) / med * 100)]
+        if truth:
+            ground["prc"]["solid_as_noise_pct"] = solid_noise / max(solid, 1) * 100
+            ground["prc_steps_f1"] = {k: _prf(np.concatenate(v), t_all)["f1"] for k, v in steps.items()}
+        ms = {k: float(np.mean(v)) for k, v in times.items() if v}
+        if "read_ms" in ms:
+            ms["organise_ms"] = max(ms["read_organise_ms"] - ms["read_ms"], 0.0)
+            ms["prc_whole_ms"] = ms["organise_ms"] + ms["prc_ms"]
+            if "patchwork_ms" in ms:
+                ms["prc_whole_over_patchwork"] = ms["prc_whole_ms"] / ms["patchwork_ms"]
+        ground["timing"] = ms
+        out["ground"] = ground
+
+    # -- noise on a simulated drive
+    from data_tools.sim.simulator import NoiseConfig, SimConfig, Simulator
+
+    sim = Simulator(
+        SimConfig(scene="urban", sensor="hdl64", frames=noise_frames, noise=NoiseConfig(outlier_rate=outlier_rate))
+    )
+    model = sim.sensor.model
+    drops: dict[str, list[np.ndarray]] = {"prc": [], "sor": [], "ror": []}
+    ntimes: dict[str, list[float]] = {"prc": [], "sor": [], "ror": []}
+    ntruth: list[np.ndarray] = []
+    for i in range(noise_frames):
+        f = sim.frame(i)
+        valid = f.ranges > 0
+        xyz = model.to_xyz(f.ranges)[valid]
+        ntruth.append((f.labels == L.NOISE)[valid])
+        got: dict[str, np.ndarray] = {}
+
+        def run_prc(r=f.ranges, v=valid, got=got) -> None:
+            res = prc_block(r, cfg, sensor=model, wrap=True)
+            got["prc"] = ((res.labels == L.NOISE) & ~res.one_sided)[v]
+
+        def run_sor(p=xyz, got=got) -> None:
+            got["sor"] = ~peers.statistical_outlier_keep(p, 20, 2.0)
+
+        def run_ror(p=xyz, got=got) -> None:
+            got["ror"] = ~peers.radius_outlier_keep(p, 0.5, 2)
+
+        for k, v in _interleaved({"prc": run_prc, "sor": run_sor, "ror": run_ror}, 1).items():
+            ntimes[k].append(v * 1e3)
+            drops[k].append(got[k])
+    nt = np.concatenate(ntruth)
+    noise: dict[str, Any] = {"frames": noise_frames, "outlier_rate": outlier_rate, "truth": "simulator noise labels"}
+    for k, d in drops.items():
+        dd = np.concatenate(d)
+        noise[k] = {
+            **_prf(dd, nt),
+            "real_removed_pct": float((dd & ~nt).sum() / max((~nt).sum(), 1) * 100),
+            "ms_per_frame": float(np.median(ntimes[k])),
+        }
+    noise["ror_over_prc_time"] = noise["ror"]["ms_per_frame"] / noise["prc"]["ms_per_frame"]
+    out["noise"] = noise
+
+    # -- unlabelled sweeps of other sensors
+    if sweeps is None and kitti_dir is not None:
+        root = Path(kitti_dir).parent
+        sweeps = sorted((root / "ouster" / "decoded").glob("*.npz")) + sorted((root / "multisensor").glob("*.pcd"))
+    rows: dict[str, Any] = {}
+    for path in sweeps or []:
+        try:
+            scan = open_dataset(path)[0]
+        except Exception as exc:  # a reader's one-line error: reported, not fatal to the bench
+            rows[Path(path).name] = {"skipped": str(exc)}
+            continue
+        pts = scan.points()
+        res = prc_block(scan.ranges, cfg, sensor=scan.sensor, wrap=True)
+        g_prc = scan.per_point(res.labels) == L.GROUND
+        ring, ref = reference_ring(pts, scan.per_point(np.broadcast_to(np.arange(scan.shape[0])[:, None], scan.shape)))
+        entry: dict[str, Any] = {"points": len(pts), "shape": list(scan.shape), "reference_ring": ring}
+        if ring is None:
+            entry["skipped"] = "no ring with 50 returns beyond 3 m below the sensor: no reference plane"
+            rows[Path(path).name] = entry
+            continue
+        plane = lowest_ring_plane(pts[ref])
+        near = np.abs(pts @ plane[:3] + plane[3]) < 0.3
+        entry |= {
+            "sensor_height_m": float(plane[3]),
+            "prc_ground_share": float(g_prc.mean()),
+            "prc_ground_near_plane": float(near[g_prc].mean()) if g_prc.any() else None,
+            "prc_ground_error": res.ground_error,
+        }
+        if patchwork is not None:
+            g_pw = peers.PatchworkGround(sensor_height=float(plane[3]))(pts)
+            entry["patchwork_ground_share"] = float(g_pw.mean())
+            entry["patchwork_ground_near_plane"] = float(near[g_pw].mean()) if g_pw.any() else None
+        rows[Path(path).name] = entry
+    out["sweeps"] = rows
+    return out
+
+
 def run_bench(kitti_dir: Path | None = None) -> dict[str, Any]:
     """All sections implemented so far."""
     return {
@@ -219,4 +468,5 @@ def run_bench(kitti_dir: Path | None = None) -> dict[str, Any]:
         "mapclass": bench_mapclass(),
         "sim": bench_sim(),
         "viz": bench_viz(),
+        "peers": bench_peers(kitti_dir),
     }

@@ -11,8 +11,9 @@ of Algorithm 1 is unchanged, and ``PRCConfig(ground="largest_smooth")`` (the ``u
 Steps (each can be switched off and is measured in the README section of the report):
 
 0. **Ground plane under the sensor** (:func:`ground_plane`): the lowest third of the beams
-   mostly hits the ground around the vehicle; the mode of their heights (0.1 m bins) seeds a
-   least-squares plane through the points within 0.3 m of it. The plane levels the sweep when
+   mostly hits the ground around the vehicle; the lowest well-filled height bin (0.1 m bins, at
+   least 30 % of the fullest: ground is the lowest surface, a roof under the sensor is not)
+   seeds a least-squares plane through the points within 0.3 m of it. The plane levels the sweep when
    the sensor is tilted (its tilt is reported), and gives the height ``z_ref`` where ground
    starts. Its assumption (ground visible below the sensor) is checked: too few points near the
    plane, or a plane tilted more than 30 degrees, raise :class:`GroundModelError` rather than
@@ -122,59 +123,68 @@ def ground_plane(
         Fewer than 30 supporting returns, or the plane tilted more than ``max_tilt_deg``.
     """
     low = np.ascontiguousarray(order[: max(1, len(order) // 3)])
-    pts = _below_sensor(xyz, valid, low, 4000)
+    pts = _below_sensor(xyz, valid, low, max(1, len(low) * valid.shape[1] // 8000))
     if len(pts) < 30:
         raise GroundModelError(f"only {len(pts)} returns below the sensor in the lowest third of the beams")
     z = pts[:, 2]
-    bins = np.arange(z.min(), 0.1, 0.1)
-    if len(bins) < 2:
-        bins = np.array([z.min(), z.min() + 0.1])
-    hist, edges = np.histogram(z, bins=bins)
-    i = int(np.argmax(hist))
-    z0 = 0.5 * (edges[i] + edges[i + 1])
-    near = np.abs(z - z0) < 0.3
+    # ground is the lowest surface: the lowest height bin holding at least 30 % of the fullest
+    # bin's returns (not the fullest itself, which may be a vehicle's roof under a roof-mounted
+    # sensor), then the fullest bin within 0.3 m above it
+    hist = np.bincount(((z - z.min()) / 0.1).astype(np.int64))
+    first = int(np.argmax(hist >= 0.3 * hist.max()))
+    i = first + int(np.argmax(hist[first : first + 4]))
+    z0 = float(z.min()) + 0.1 * (i + 0.5)
     plane = np.array([0.0, 0.0, 1.0, -z0])
     for _ in range(2):
-        p = pts[near]
-        if len(p) < 30:
-            raise GroundModelError(f"only {len(p)} returns near a ground plane below the sensor")
-        a = np.column_stack([p[:, 0], p[:, 1], np.ones(len(p))])
+        ata, atb, used = _plane_normal_equations(pts, plane, 0.3)
+        if used < 30:
+            raise GroundModelError(f"only {used} returns near a ground plane below the sensor")
         try:  # z = c0 x + c1 y + c2 by the normal equations
-            coef = np.linalg.solve(a.T @ a, a.T @ p[:, 2])
+            coef = np.linalg.solve(ata, atb)
         except np.linalg.LinAlgError as exc:
             raise GroundModelError("the returns below the sensor do not span a plane") from exc
         n = np.array([-coef[0], -coef[1], 1.0])
         norm = np.linalg.norm(n)
         plane = np.array([*(n / norm), -coef[2] / norm])
-        near = np.abs(pts @ plane[:3] + plane[3]) < 0.3
+    near = int(_plane_normal_equations(pts, plane, 0.3)[2])
     tilt = float(np.degrees(np.arccos(np.clip(plane[2], -1.0, 1.0))))
     if tilt > max_tilt_deg:
         raise GroundModelError(f"ground plane below the sensor tilted {tilt:.0f} deg (> {max_tilt_deg:.0f})")
-    return plane, int(near.sum())
+    return plane, near
 
 
 @njit(cache=True, nogil=True)
-def _below_sensor(xyz, valid, rows, target):
-    """Returns of ``rows`` below the sensor (z < 0), an even subsample of about ``target``."""
+def _below_sensor(xyz, valid, rows, stride):
+    """Returns of ``rows`` below the sensor (z < 0) in every ``stride``-th column."""
     C = valid.shape[1]
-    n = 0
-    for r in rows:
-        for c in range(C):
-            if valid[r, c] and xyz[r, c, 2] < 0.0:
-                n += 1
-    stride = max(1, n // target)
-    out = np.empty((n // stride + 1, 3), np.float64)
+    out = np.empty((len(rows) * (C // stride + 1), 3), np.float64)
     k = 0
-    i = 0
     for r in rows:
-        for c in range(C):
+        for c in range(0, C, stride):
             if valid[r, c] and xyz[r, c, 2] < 0.0:
-                if i % stride == 0:
-                    for a in range(3):
-                        out[k, a] = xyz[r, c, a]
-                    k += 1
-                i += 1
+                for a in range(3):
+                    out[k, a] = xyz[r, c, a]
+                k += 1
     return out[:k]
+
+
+@njit(cache=True, nogil=True)
+def _plane_normal_equations(pts, plane, tol):
+    """Normal equations of ``z = c0 x + c1 y + c2`` over the points within ``tol`` of ``plane``."""
+    ata = np.zeros((3, 3))
+    atb = np.zeros(3)
+    used = 0
+    for i in range(pts.shape[0]):
+        x, y, z = pts[i, 0], pts[i, 1], pts[i, 2]
+        if abs(plane[0] * x + plane[1] * y + plane[2] * z + plane[3]) >= tol:
+            continue
+        used += 1
+        v = (x, y, 1.0)
+        for a in range(3):
+            atb[a] += v[a] * z
+            for b in range(3):
+                ata[a, b] += v[a] * v[b]
+    return ata, atb, used
 
 
 @njit(cache=True, nogil=True)
@@ -255,35 +265,33 @@ def column_seed(rho, z, valid, order, z_ref, start, tan_slope, step):
 @njit(cache=True, nogil=True)
 def cell_heights(rho, z, valid, seed, cell_cols, cell_m, n_bins):
     """Step 2: mean seed height per polar cell (``cell_cols`` columns by ``cell_m`` of horizontal
-    range) and the cell of every slot.
+    range; cell of slot ``(r, c)``: :func:`_cell`).
 
     Returns
     -------
     height : float64 (n_cells,)
         Mean seed height (NaN for cells with fewer than 3 seed returns).
-    cell : int64 (rows, cols)
-        Cell index of every slot (-1 without a return).
     """
     R, C = valid.shape
     n_sec = (C + cell_cols - 1) // cell_cols
     total = np.zeros(n_sec * n_bins)
     count = np.zeros(n_sec * n_bins)
-    cell = np.full((R, C), -1, np.int64)
     for r in range(R):
         for c in range(C):
-            if not valid[r, c]:
-                continue
-            b = min(int(rho[r, c] / cell_m), n_bins - 1)
-            k = (c // cell_cols) * n_bins + b
-            cell[r, c] = k
             if seed[r, c]:
+                k = _cell(rho[r, c], c, cell_cols, cell_m, n_bins)
                 total[k] += z[r, c]
                 count[k] += 1.0
     height = np.full(n_sec * n_bins, np.nan)
     for k in range(n_sec * n_bins):
         if count[k] >= 3.0:
             height[k] = total[k] / count[k]
-    return height, cell
+    return height
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cell(rho, c, cell_cols, cell_m, n_bins):
+    return (c // cell_cols) * n_bins + min(int(rho / cell_m), n_bins - 1)
 
 
 @njit(cache=True, nogil=True)
@@ -308,7 +316,9 @@ def _ground_segments(segments, smooth, seed, share):
 
 
 @njit(cache=True, nogil=True)
-def _grow(z, valid, seed, height, cell, tau, segments, smooth, seg_ok, use_cells, use_segments):
+def _grow(
+    rho, z, valid, seed, height, cell_cols, cell_m, n_bins, tau, segments, smooth, seg_ok, use_cells, use_segments
+):
     """Steps 2 and 3 per slot: seeds consistent with their cell, plus smooth returns of
     ground-dominated segments within ``tau`` of their cell's height."""
     R, C = valid.shape
@@ -320,7 +330,7 @@ def _grow(z, valid, seed, height, cell, tau, segments, smooth, seg_ok, use_cells
             near = True
             has = False
             if use_cells:
-                h = height[cell[r, c]]
+                h = height[_cell(rho[r, c], c, cell_cols, cell_m, n_bins)]
                 has = not np.isnan(h)
                 near = has and abs(z[r, c] - h) < tau
             if seed[r, c]:
@@ -403,7 +413,8 @@ def column_ground(
     cols = valid.shape[1]
     cell_cols = max(1, round(cols * config.ground_cell_deg / 360.0))
     n_bins = int(np.ceil(200.0 / config.ground_cell_m))
-    height, cell = cell_heights(rho, z, valid, seed, cell_cols, float(config.ground_cell_m), n_bins)
+    cell_m = float(config.ground_cell_m)
+    height = cell_heights(rho, z, valid, seed, cell_cols, cell_m, n_bins)
     if use_segments:
         seg = np.ascontiguousarray(segments, dtype=np.int32)
         smooth_arr = np.ascontiguousarray(smooth, dtype=bool)
@@ -413,7 +424,20 @@ def column_ground(
         seg_ok = np.zeros(1, dtype=bool)
         smooth_arr = np.zeros(valid.shape, dtype=bool)
     ground = _grow(
-        z, valid, seed, height, cell, float(config.ground_tau), seg, smooth_arr, seg_ok, use_cells, use_segments
+        rho,
+        z,
+        valid,
+        seed,
+        height,
+        cell_cols,
+        cell_m,
+        n_bins,
+        float(config.ground_tau),
+        seg,
+        smooth_arr,
+        seg_ok,
+        use_cells,
+        use_segments,
     )
     counts["dropped_by_cells"] = int((seed & ~ground).sum())
     counts["added_by_segments"] = int((ground & ~seed).sum())
