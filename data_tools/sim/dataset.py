@@ -13,6 +13,7 @@ Layout of a simulated sequence::
 from __future__ import annotations
 
 import json
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -119,7 +120,7 @@ class SimSequence(SequenceBase):
         try:
             with np.load(path) as z:
                 data = {k: z[k] for k in FRAME_KEYS}
-        except (OSError, ValueError, KeyError, EOFError) as exc:
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
             raise DataError(f"{path}: cannot read simulated frame: {exc}") from exc
         return Scan(
             ranges=data["ranges"],

@@ -31,19 +31,22 @@ def open_input(path: Path, fmt: str | None = None, max_frames: int | None = None
     return dataset, n
 
 
-def frames_of(dataset, n: int) -> Iterator[Scan]:
-    """The first ``n`` scans; a frame that cannot be read raises :class:`FrameError` (the pipeline
-    skips and counts it) instead of ending the run."""
-    for i in range(n):
+class frames_of(Iterator[Scan]):
+    """The first ``n`` scans of ``dataset``. A frame that cannot be read raises :class:`FrameError`
+    from ``next()`` and the iteration goes on with the next frame, so the pipeline skips and counts
+    it instead of ending the run."""
+
+    def __init__(self, dataset, n: int) -> None:
+        self.dataset, self.n, self.i = dataset, n, 0
+
+    def __next__(self) -> Scan:
+        if self.i >= self.n:
+            raise StopIteration
+        i, self.i = self.i, self.i + 1
         try:
-            yield dataset[i]
+            return self.dataset[i]
         except (DataError, ScanError) as exc:
-            raise_frame_error(exc)
-
-
-def raise_frame_error(exc: Exception) -> None:
-    err = FrameError(str(exc))
-    raise err from exc
+            raise FrameError(str(exc)) from exc
 
 
 def _json_default(value: object) -> object:
