@@ -91,9 +91,32 @@ class OrganizeReport:
 # ----------------------------------------------------------------------------- numba kernels
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _atan2(y, x):
+    """atan2 by a degree-11 minimax polynomial (|error| < 2e-6 rad, far below a column)."""
+    ax = abs(x)
+    ay = abs(y)
+    mx = max(ax, ay)
+    if mx == 0.0:
+        return 0.0
+    a = min(ax, ay) / mx
+    q = a * a
+    r = (((((-0.0117212 * q + 0.05265332) * q - 0.11643287) * q + 0.19354346) * q - 0.33262347) * q + 0.99997726) * a
+    if ay > ax:
+        r = 1.5707963267948966 - r
+    if x < 0.0:
+        r = 3.141592653589793 - r
+    if y < 0.0:
+        r = -r
+    return r
+
+
 @njit(cache=True, nogil=True)
-def _polar(xyz):
-    """Per point: has a return, range, azimuth (rad, (-pi, pi]), tangent of the elevation."""
+def _polar(xyz, offset):
+    """Per point: has a return, range, azimuth (rad, (-pi, pi]) and the tangent of the beam
+    elevation ``z / (rho - offset)``, ``offset`` being the horizontal distance of the beam
+    origins from the sensor axis (Ouster: ``lidar_origin_to_beam_origin``; 0 for decoders
+    that give points from one origin)."""
     n = xyz.shape[0]
     ok = np.empty(n, np.bool_)
     rng = np.zeros(n, np.float32)
@@ -103,19 +126,17 @@ def _polar(xyz):
         x = float(xyz[i, 0])
         y = float(xyz[i, 1])
         z = float(xyz[i, 2])
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            ok[i] = False
-            continue
         rho2 = x * x + y * y
         r2 = rho2 + z * z
-        if r2 <= 0.0:
-            ok[i] = False
+        good = math.isfinite(r2) and r2 > 0.0
+        ok[i] = good
+        if not good:
             continue
-        ok[i] = True
         rho = math.sqrt(rho2)
         rng[i] = math.sqrt(r2)
-        az[i] = math.atan2(y, x)
-        te[i] = z / rho if rho > 0 else (1e6 if z > 0 else -1e6)
+        az[i] = _atan2(y, x)
+        h = rho - offset
+        te[i] = z / h if h > 1e-6 else (1e6 if z > 0 else -1e6)
     return ok, rng, az, te
 
 
@@ -163,6 +184,7 @@ def _ring_runs(az, ok, s, jitter, over):
     run = np.full(n, -1, np.int64)
     cur = -1
     prog = 0.0
+    pmin = 0.0
     prev = -1
     for i in range(n):
         if not ok[i]:
@@ -170,20 +192,58 @@ def _ring_runs(az, ok, s, jitter, over):
         if prev < 0:
             cur = 0
             prog = 0.0
+            pmin = 0.0
         else:
             f = s * (az[i] - az[prev])
             f = f - 2.0 * np.pi * math.floor(f / (2.0 * np.pi))  # [0, 2 pi)
             if f > 2.0 * np.pi - jitter:
                 f -= 2.0 * np.pi
-            if prog + f > 2.0 * np.pi - over:
+            # progress is measured from the ring's earliest azimuth (jitter at its start)
+            if prog + f - pmin > 2.0 * np.pi - over:
+                cur += 1
+                prog = 0.0
+                pmin = 0.0
+            else:
+                prog += f
+                pmin = min(pmin, prog)
+        run[i] = cur
+        prev = i
+    return run
+
+
+@njit(cache=True, nogil=True)
+def _ring_runs_cut(az, ok, s, cut, jitter):
+    """Second pass of the ring-major cut: with the sweep's cut azimuth known, a ring ends
+    where the azimuth passes the cut (``u``, the angle from the cut in direction ``s``, drops
+    by more than pi after the ring has travelled more than pi) or jumps back by more than
+    ``jitter`` (the ring ended early, the next one starts again near the cut)."""
+    n = az.shape[0]
+    run = np.full(n, -1, np.int64)
+    cur = -1
+    prog = 0.0
+    up = 0.0
+    for i in range(n):
+        if not ok[i]:
+            continue
+        u = s * (az[i] - cut)
+        u = u - 2.0 * np.pi * math.floor(u / (2.0 * np.pi))
+        if cur < 0:
+            cur = 0
+            prog = 0.0
+        else:
+            drop = up - u
+            if (drop > np.pi and prog > np.pi) or (jitter < drop <= np.pi):
                 cur += 1
                 prog = 0.0
             else:
+                f = u - up
+                if f < -np.pi:
+                    f += 2.0 * np.pi
+                elif f > np.pi:
+                    f -= 2.0 * np.pi
                 prog += f
-                if prog < 0.0:
-                    prog = 0.0
         run[i] = cur
-        prev = i
+        up = u
     return run
 
 
@@ -224,16 +284,42 @@ def _run_medians(te, ok, lo, hi):
 
 
 @njit(cache=True, nogil=True)
-def _refine_cuts(te, ok, run, lo, hi, row_of_run, beam_te, window):
-    """Move every cut between consecutive runs that belong to different beams to the point
-    that best separates the two beams' elevations within ``window`` points either side
-    (each point counts for the beam whose elevation it is nearer). Returns the row of
-    every point (-1 for no-return points)."""
+def _run_spread(te, ok, lo, hi, med):
+    """Median absolute deviation of the tangent of elevation within each run."""
+    m = lo.shape[0]
+    out = np.full(m, np.nan)
+    for k in range(m):
+        if lo[k] < 0 or not np.isfinite(med[k]):
+            continue
+        buf = np.empty(hi[k] - lo[k])
+        c = 0
+        for i in range(lo[k], hi[k]):
+            if ok[i]:
+                buf[c] = abs(te[i] - med[k])
+                c += 1
+        if c:
+            out[k] = np.median(buf[:c])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _refine_cuts(te, ok, run, lo, hi, row_of_run, beam_te, window, refine):
+    """Row of every point (-1 for no-return points); with ``refine``, each cut between
+    consecutive runs of different beams moved, within ``window`` points either side, to the
+    split that puts the most points with the beam they are nearer in elevation (ties: the
+    coarse cut).
+
+    The azimuth alone leaves a cut ambiguous where the next ring starts a little behind the
+    previous one's end (beam azimuth offsets) or a ring's first returns are missing; the
+    elevation settles it when the beams' elevations are clean (the caller checks the spread
+    within rings; not so for beams with vertical offsets such as the HDL-64E's)."""
     n = te.shape[0]
     row = np.full(n, -1, np.int64)
     for i in range(n):
         if ok[i]:
             row[i] = row_of_run[run[i]]
+    if not refine:
+        return row
     m = lo.shape[0]
     for k in range(m - 1):
         if lo[k] < 0 or lo[k + 1] < 0:
@@ -244,24 +330,23 @@ def _refine_cuts(te, ok, run, lo, hi, row_of_run, beam_te, window):
             continue
         ta = beam_te[ra]
         tb = beam_te[rb]
-        a = max(lo[k], lo[k + 1] - window)
-        b = min(hi[k + 1], lo[k + 1] + window)
-        # score(j) = #(i < j nearer a) + #(i >= j nearer b); start with j = a
+        cut = lo[k + 1]
+        a = max(lo[k] + 1, cut - window)
+        b = min(hi[k + 1] - 1, cut + window)
         score = 0
-        for i in range(a, b):
-            if ok[i] and abs(te[i] - tb) <= abs(te[i] - ta):
-                score += 1
-        best = score
-        best_j = a
-        for j in range(a, b):
-            if ok[j]:
-                if abs(te[j] - tb) <= abs(te[j] - ta):
-                    score -= 1
-                else:
-                    score += 1
-            if score > best or (score == best and abs(j + 1 - lo[k + 1]) < abs(best_j - lo[k + 1])):
+        best = -1
+        best_j = cut
+        for j in range(a, b + 1):
+            if j > a:
+                i = j - 1
+                if ok[i]:
+                    if abs(te[i] - ta) < abs(te[i] - tb):
+                        score += 1
+                    else:
+                        score -= 1
+            if score > best or (score == best and abs(j - cut) < abs(best_j - cut)):
                 best = score
-                best_j = j + 1
+                best_j = j
         for i in range(a, b):
             if ok[i]:
                 row[i] = ra if i < best_j else rb
@@ -354,7 +439,7 @@ def _scatter(az, rng, row, a0, s, inv_step, phase, rows, cols):
         if r < 0:
             continue
         u = s * (az[i] - a0) * inv_step - phase[r] + 0.5
-        c = int(math.floor(u)) % cols
+        c = int(math.floor(u)) % cols  # noqa: RUF046 (numba: explicit int)
         k = r * cols + c
         slot[i] = k
         per_row[r] += 1
@@ -366,6 +451,31 @@ def _scatter(az, rng, row, a0, s, inv_step, phase, rows, cols):
             if rng[i] < rng[j]:
                 rep[k] = i
     return slot, rep, per_row, collisions
+
+
+@njit(cache=True, nogil=True)
+def _gather(rep, src, out):
+    """``out[k] = src[rep[k]]`` for occupied slots (``rep[k] >= 0``), 0 elsewhere."""
+    for k in range(rep.shape[0]):
+        j = rep[k]
+        out[k] = src[j] if j >= 0 else 0
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _gather3(rep, src, out):
+    """Row-wise :func:`_gather` for (N, 3) coordinates."""
+    for k in range(rep.shape[0]):
+        j = rep[k]
+        if j >= 0:
+            out[k, 0] = src[j, 0]
+            out[k, 1] = src[j, 1]
+            out[k, 2] = src[j, 2]
+        else:
+            out[k, 0] = 0.0
+            out[k, 1] = 0.0
+            out[k, 2] = 0.0
+    return out
 
 
 # ----------------------------------------------------------------------------- beam tables
@@ -391,7 +501,7 @@ def estimate_beams(
     el = np.degrees(np.arctan(te))
     near = min(3.0, float(np.percentile(rng, 20))) if len(rng) else 0.0
     use = el[rng >= near] if (rng >= near).sum() > 0.5 * len(rng) else el
-    nb = int(round(180.0 / resolution_deg))
+    nb = round(180.0 / resolution_deg)
     hist, edges = np.histogram(use, bins=nb, range=(-90.0, 90.0))
     kernel = np.array([1.0, 2.0, 3.0, 2.0, 1.0]) / 9.0
     h = np.convolve(hist.astype(np.float64), kernel, mode="same")
@@ -416,6 +526,44 @@ def estimate_beams(
     beam_te = np.tan(np.radians(beams))
     conc = beam_concentration(te, beam_te)
     return beam_te, conc
+
+
+def estimate_beam_offset(xyz: np.ndarray, max_offset: float = 0.1, samples: int = 20000) -> float:
+    """Horizontal distance (m) of the beam origins from the sensor axis, from the data.
+
+    A beam leaving the axis at ``n`` metres puts its points at elevation
+    ``atan(z / (rho - n))`` from the sensor origin, so near points of one beam spread in
+    elevation unless ``n`` is known. The estimate is the ``n`` (1 mm steps, ``|n| <=
+    max_offset``) that makes the elevation histogram sharpest (largest sum of squared counts).
+    0 for decoders whose points come from one origin.
+    """
+    pts = np.asarray(xyz, dtype=np.float64)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) > samples:
+        pts = pts[np.random.default_rng(0).choice(len(pts), samples, replace=False)]
+    rho = np.hypot(pts[:, 0], pts[:, 1])
+    keep = rho > 2 * max_offset
+    z, rho = pts[keep, 2], rho[keep]
+    if len(z) < 100:
+        return 0.0
+
+    kernel = np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2)
+
+    def sharpness(n: float) -> float:
+        # histogram at 0.005 deg, smoothed (sigma 0.01 deg) so that bin edges do not count
+        el = np.degrees(np.arctan(z / (rho - n)))
+        h = np.histogram(el, bins=36000, range=(-90.0, 90.0))[0].astype(np.float64)
+        h = np.convolve(h, kernel, mode="same")
+        return float((h * h).sum())
+
+    coarse = np.arange(-max_offset, max_offset + 1e-9, 0.005)
+    scores = [sharpness(n) for n in coarse]
+    n0 = float(coarse[int(np.argmax(scores))])
+    fine = np.arange(n0 - 0.005, n0 + 0.0051, 0.001)
+    scores_f = [sharpness(n) for n in fine]
+    best = float(fine[int(np.argmax(scores_f))])
+    # only a clear gain over no offset counts
+    return best if max(scores_f) > 1.05 * sharpness(0.0) else 0.0
 
 
 def beam_concentration(te: np.ndarray, beam_te: np.ndarray) -> float:
@@ -489,6 +637,8 @@ class Organizer:
         self.a0: float | None = None
         self.phase: np.ndarray | None = None
         self._order_direction: int | None = None
+        self.beam_offset: float | None = None
+        self.clean_rings: bool | None = None
         self.frames = 0
         self.warnings_total = 0
 
@@ -521,7 +671,10 @@ class Organizer:
         ):
             if arr is not None and np.shape(arr) != (n,):
                 raise DataError(f"{source}: {nm} has shape {np.shape(arr)} for {n} points")
-        ok, rng, az, te = _polar(np.ascontiguousarray(xyz))
+        cloud = np.array(xyz, dtype=np.float32, order="C")  # Scan.cloud (no-return rows zeroed later)
+        if self.beam_offset is None:
+            self.beam_offset = 0.0 if ring is not None else estimate_beam_offset(cloud)
+        ok, rng, az, te = _polar(cloud, self.beam_offset)
         n_ok = int(ok.sum())
         if n_ok == 0:
             raise DataError(f"{source}: no point with a return ({n} points, all NaN/inf or at the origin)")
@@ -530,6 +683,8 @@ class Organizer:
             times = np.asarray(times, dtype=np.float64)
             if not np.isfinite(times[ok]).all():
                 raise DataError(f"{source}: non-finite per-point times")
+        if n_ok < n:
+            warnings.append(f"{source}: {n - n_ok} of {n} points have no return (NaN/inf or at the origin); label 0")
 
         method, row, rows = self._rows(xyz, ok, rng, az, te, ring, times, source, warnings)
         s, a0 = self._direction(az, ok, row, times, method, source)
@@ -541,7 +696,7 @@ class Organizer:
         slot, rep, per_row, collisions = _scatter(az, rng, row, a0, s, inv_step, self.phase, rows, cols)
         report = self._check(method, rows, cols, per_row, collisions, n_ok, n - n_ok, source, warnings)
         return self._build(
-            xyz, ok, rng, te, slot, rep, rows, cols, s, a0, times, intensity, name, source, frame_time,
+            cloud, ok, rng, te, slot, rep, rows, cols, s, a0, times, intensity, name, source, frame_time,
             gt_point_labels, gt_point_instance, gt_pose, report, collisions,
         )  # fmt: skip
 
@@ -564,8 +719,8 @@ class Organizer:
         if g.ndim != 3 or g.shape[2] < 3 or g.shape[0] < 1 or g.shape[1] < 2:
             raise DataError(f"{source}: an organised cloud must be (H, W, 3), got shape {g.shape}")
         H, W = g.shape[:2]
-        flat = np.ascontiguousarray(g[..., :3].reshape(-1, 3))
-        ok, rng, az, te = _polar(flat)
+        flat = np.array(g[..., :3].reshape(-1, 3), dtype=np.float32, order="C")
+        ok, rng, az, te = _polar(flat, 0.0)
         if not ok.any():
             raise DataError(f"{source}: no point with a return in the {H} x {W} organised cloud")
         warnings: list[str] = []
@@ -599,8 +754,7 @@ class Organizer:
         with np.errstate(all="ignore"):
             offs_raw = np.nanmedian(resid, axis=1)
         offs[inv] = np.nan_to_num(offs_raw)
-        slot = row * W + col
-        slot[~ok] = -1
+        slot = np.repeat(inv, W) * W + col  # no-return points keep their own (empty) slot
         rep = np.full(H * W, -1, np.int64)
         rep[slot[ok]] = np.flatnonzero(ok)
         per_row = np.bincount(row[ok], minlength=H)
@@ -638,11 +792,12 @@ class Organizer:
             raise DataError(f"{source}: organiser method 'ring' but the source has no ring field")
         layout = "unordered"
         if method in ("auto", "order"):
-            frac, total = _order_stats(az, ok, np.radians(10.0))
+            # beams with azimuth offsets (Ouster OS-0: +-11 deg) make column-major steps large
+            frac, total = _order_stats(az, ok, np.radians(45.0))
             revs = abs(total) / TWO_PI
-            if frac > 0.8 and revs >= 1.5:
+            if frac > 0.7 and revs >= 1.5:
                 layout = "ring-major"
-            elif frac > 0.8:
+            elif frac > 0.7:
                 layout = "column-major"
             elif method == "order":
                 raise DataError(
@@ -680,17 +835,38 @@ class Organizer:
 
     def _rows_ring_major(self, ok, rng, az, te, source, warnings):
         s = self._order_direction
-        step_guess = TWO_PI / self.cols if self.cols else np.radians(0.1)
+        if self.cols:
+            step_guess = TWO_PI / self.cols
+        else:  # the typical azimuth step between consecutive points of a ring
+            idx = np.flatnonzero(ok)[:50000]
+            d = np.abs(np.angle(np.exp(1j * np.diff(az[idx]))))
+            d = d[(d > 1e-7) & (d < np.radians(5.0))]
+            step_guess = float(np.median(d)) if len(d) > 10 else np.radians(0.1)
         run = _ring_runs(az, ok, float(s), np.radians(15.0), 0.5 * step_guess)
-        n_runs = int(run.max()) + 1
-        lo, hi = _run_bounds(run, n_runs)
+        lo, hi = _run_bounds(run, int(run.max()) + 1)
+        # the sweep's cut: early among the ring starts (late starts are rings whose first
+        # returns are missing); then cut again from it, which does not chain late starts
+        cnt = hi - lo
+        long = (lo >= 0) & (cnt >= 0.2 * cnt.max())
+        starts = az[lo[long]]
+        ref = float(np.angle(np.exp(1j * starts).mean()))
+        rel = s * np.angle(np.exp(1j * (starts - ref)))
+        cut = ref + s * float(np.percentile(rel, 2)) - s * 0.5 * step_guess
+        run = _ring_runs_cut(az, ok, float(s), cut, np.radians(15.0))
+        lo, hi = _run_bounds(run, int(run.max()) + 1)
         med, cnt = _run_medians(te, ok, lo, hi)
         if self.beam_te is None:
             self.beam_te = self._beams_from_runs(med, cnt)
         bounds = _beam_bounds(self.beam_te)
         row_of_run = _nearest_beam(med, cnt > 0, bounds)
-        window = int(max(16, np.radians(15.0) / step_guess))
-        row = _refine_cuts(te, ok, run, lo, hi, row_of_run, self.beam_te, window)
+        if self.clean_rings is None:
+            # rings are elevation-clean when points of one ring spread far less than the beam gap
+            spread = _run_spread(te, ok, lo, hi, med)
+            gaps = np.abs(np.diff(np.arctan(self.beam_te))) if len(self.beam_te) > 1 else np.array([1.0])
+            sp = float(np.nanmedian(np.arctan(spread[cnt >= 0.2 * cnt.max()]))) if (cnt > 0).any() else 0.0
+            self.clean_rings = bool(sp < 0.1 * float(np.median(gaps)))
+        window = int(max(32, 0.1 * float(np.median(cnt[cnt > 0]))))
+        row = _refine_cuts(te, ok, run, lo, hi, row_of_run, self.beam_te, window, self.clean_rings)
         return row, len(self.beam_te)
 
     def _beams_from_runs(self, med, cnt):
@@ -735,10 +911,8 @@ class Organizer:
                 same = row[sub][1:] == row[sub][:-1]
                 d = d[same & (np.abs(d) < np.radians(10.0))]
                 s = 1 if d.sum() >= 0 else -1
-            elif (
-                self._order_direction is not None and method != "ring-field" or method in ("ring-major", "column-major")
-            ):
-                s = self._order_direction or 1
+            elif self._order_direction is not None and method != "ring-field":
+                s = self._order_direction
                 if not self.time_follows_order:
                     s = -s
             self.direction = s
@@ -769,7 +943,7 @@ class Organizer:
         if len(steps) < 10:
             raise DataError(f"{source}: cannot estimate the column count (too few points along the rings)")
         step = float(np.median(steps))
-        self.cols = max(1, int(round(TWO_PI / step)))
+        self.cols = max(1, round(TWO_PI / step))
         return self.cols
 
     # ------------------------------------------------------------------ checks and the Scan
@@ -816,10 +990,8 @@ class Organizer:
         )
         inten = None
         if intensity is not None:
-            inten = np.zeros(rows * cols, np.float32)
-            has = rep >= 0
-            inten[has] = np.asarray(intensity, dtype=np.float32)[rep[has]]
-            inten = inten.reshape(rows, cols)
+            src = np.ascontiguousarray(intensity, dtype=np.float32)
+            inten = _gather(rep, src, np.empty(rows * cols, np.float32)).reshape(rows, cols)
         t = None
         if times is not None:
             t = self._slot_times(times, rep, rows, cols)
@@ -844,26 +1016,25 @@ class Organizer:
         return np.where(np.isfinite(tg), tg, col_t[None, :])
 
     def _finish(
-        self, xyz, ok, rng, slot, rep, rows, cols, sensor, t, inten, name, source, frame_time,
+        self, cloud, ok, rng, slot, rep, rows, cols, sensor, t, inten, name, source, frame_time,
         gt_point_labels, gt_point_instance, gt_pose, report, collisions, slot_times_given,
     ):  # fmt: skip
-        n = len(ok)
-        has = rep >= 0
-        ranges = np.zeros(rows * cols, np.float32)
-        ranges[has] = rng[rep[has]]
-        slot_xyz = np.zeros((rows * cols, 3), np.float32)
-        slot_xyz[has] = xyz[rep[has]]
-        cloud = np.asarray(xyz, dtype=np.float32).copy() if xyz.dtype != np.float32 else np.array(xyz, copy=True)
+        size = rows * cols
+        ranges = _gather(rep, rng, np.empty(size, np.float32))
+        slot_xyz = _gather3(rep, cloud, np.empty((size, 3), np.float32))
         point_slot = slot
-        if not ok.all():
-            empty = np.flatnonzero(~has)
-            if len(empty) == 0:
-                raise DataError(
-                    f"{source}: {int((~ok).sum())} no-return points but the range image has no empty slot to hold them"
-                )
+        if report.nonfinite_points:
             cloud[~ok] = 0.0
-            point_slot = slot.copy()
-            point_slot[~ok] = empty[0]
+            lost = slot < 0
+            if lost.any():
+                empty = np.flatnonzero(rep < 0)
+                if len(empty) == 0:
+                    raise DataError(
+                        f"{source}: {int(lost.sum())} no-return points but the range image has no empty slot "
+                        "to hold them"
+                    )
+                point_slot = slot.copy()
+                point_slot[lost] = empty[0]
         if frame_time is None:
             frame_time = float(np.min(t)) if t is not None else self.frames * self.sweep_period
         if t is None and not slot_times_given:
@@ -871,13 +1042,11 @@ class Organizer:
             t = frame_time + (np.arange(cols) + 0.5) / cols * self.sweep_period
         gt_slot = gt_inst = None
         if gt_point_labels is not None:
-            gt_slot = np.zeros(rows * cols, np.uint8)
-            gt_slot[has] = np.asarray(gt_point_labels)[rep[has]]
-            gt_slot = gt_slot.reshape(rows, cols)
+            src = np.ascontiguousarray(gt_point_labels, dtype=np.uint8)
+            gt_slot = _gather(rep, src, np.empty(size, np.uint8)).reshape(rows, cols)
         if gt_point_instance is not None:
-            gt_inst = np.zeros(rows * cols, np.uint32)
-            gt_inst[has] = np.asarray(gt_point_instance)[rep[has]]
-            gt_inst = gt_inst.reshape(rows, cols)
+            src = np.ascontiguousarray(gt_point_instance, dtype=np.uint32)
+            gt_inst = _gather(rep, src, np.empty(size, np.uint32)).reshape(rows, cols)
         return Scan(
             ranges=ranges.reshape(rows, cols),
             sensor=sensor,

@@ -1,31 +1,38 @@
-"""KITTI and Ouster readers: unfolding, point-to-slot mapping, and bad input."""
+"""KITTI and Ouster readers: organisation through the organiser, point-to-slot mapping, and bad input."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from data_tools import DataError, open_dataset
-from data_tools.kitti import KittiSequence, read_calib_tr, read_label_file, read_velodyne_bin, ring_index, unfold_scan
+from data_tools.kitti import KittiSequence, read_calib_tr, read_label_file, read_velodyne_bin
 from data_tools.ouster import destagger, read_ouster_npz
 from prc_slam import labels as L
 
 CALIB = "Tr: " + " ".join(["1", "0", "0", "0", "0", "1", "0", "0", "0", "0", "1", "0"]) + "\n"
 
 
-def synthetic_sweep(rings: int = 8, per_ring: int = 200, seed: int = 0) -> np.ndarray:
-    """Points ring by ring, azimuth increasing from 0 through ±pi, like a KITTI bin."""
+def synthetic_sweep(rings: int = 8, cols: int = 360, seed: int = 0, keep: float = 0.7, with_rings: bool = False):
+    """Points ring by ring, azimuth increasing from 0 through +-pi in firing steps of
+    ``2 pi / cols`` (a share ``keep`` of the firings return), like a KITTI bin; with
+    ``with_rings`` also the ring and the firing (column) of every point."""
     rng = np.random.default_rng(seed)
-    pts = []
+    pts, ring, col = [], [], []
     for k in range(rings):
-        az = np.sort(rng.uniform(0.01, 2 * np.pi - 0.05, per_ring))
+        fired = np.flatnonzero(rng.random(cols) < keep)
+        az = (fired + 0.5) * 2 * np.pi / cols
         el = np.radians(-20 + 2.5 * k)
-        r = rng.uniform(5, 30, per_ring)
-        x, y, z = r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el) * np.ones(per_ring)
-        pts.append(np.stack([x, y, z, rng.random(per_ring)], axis=1))
-    return np.concatenate(pts).astype(np.float32)
+        r = rng.uniform(5, 30, len(az))
+        x, y, z = r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el) * np.ones(len(az))
+        pts.append(np.stack([x, y, z, rng.random(len(az))], axis=1))
+        ring.append(np.full(len(az), k))
+        col.append(fired)
+    pts = np.concatenate(pts).astype(np.float32)
+    return (pts, np.concatenate(ring), np.concatenate(col)) if with_rings else pts
 
 
 def make_kitti(root: Path, frames: int = 2, labels: bool = True) -> Path:
@@ -44,35 +51,53 @@ def make_kitti(root: Path, frames: int = 2, labels: bool = True) -> Path:
     return root
 
 
-def test_ring_index_recovers_rings():
-    pts = synthetic_sweep(rings=8)
-    ring = ring_index(pts[:, :3], 64)
-    np.testing.assert_array_equal(ring, np.repeat(np.arange(8), 200))
+def test_kitti_bins_organised_ring_by_ring(tmp_path):
+    """The organiser finds the 8 rings (top beam first) and the 360 firings of a ring-major bin."""
+    pts, ring, col = synthetic_sweep(with_rings=True)
+    root = tmp_path / "seq"
+    (root / "velodyne").mkdir(parents=True)
+    pts.tofile(root / "velodyne" / "000000.bin")
+    scan = KittiSequence(root)[0]
+    rep = scan.meta["organize"]
+    assert (rep["method"], rep["rings"], rep["cols"], rep["collisions_pct"]) == ("ring-major", 8, 360, 0.0)
+    row, c = np.divmod(scan.point_slot, scan.shape[1])
+    np.testing.assert_array_equal(row, 7 - ring)  # ring 7 is the highest beam
+    # one column per firing, up to a constant shift and the direction (clockwise columns)
+    shift = (c + col) % 360
+    assert np.all(shift == shift[0])
+    np.testing.assert_allclose(np.degrees(scan.sensor.altitude), -20 + 2.5 * np.arange(8)[::-1], atol=1e-3)
 
 
-def test_ring_index_ignores_jitter_around_zero_azimuth():
-    pts = synthetic_sweep(rings=3)
-    # insert a point just below azimuth 0 in the middle of ring 1 before one just above it
+def test_kitti_rings_with_jitter_around_the_cut(tmp_path):
+    """Points just either side of azimuth 0 in the middle of a ring do not start a new ring."""
+    pts, ring, _ = synthetic_sweep(rings=3, with_rings=True)
+    i = int(np.flatnonzero(ring == 1)[100])
     jitter = np.array([[10, -0.001, 0, 0], [10, 0.001, 0, 0]], np.float32)
-    pts = np.concatenate([pts[:250], jitter, pts[250:]])
-    ring = ring_index(pts[:, :3], 64)
-    assert ring.max() == 2
+    jitter[:, 2] = 10 * np.tan(np.radians(-20 + 2.5))  # ring 1's elevation
+    pts = np.concatenate([pts[:i], jitter, pts[i:]])
+    ring = np.concatenate([ring[:i], [1, 1], ring[i:]])
+    root = tmp_path / "seq"
+    (root / "velodyne").mkdir(parents=True)
+    pts.tofile(root / "velodyne" / "000000.bin")
+    scan = KittiSequence(root)[0]
+    assert scan.meta["organize"]["rings"] == 3
+    np.testing.assert_array_equal(scan.point_slot // scan.shape[1], 2 - ring)
 
 
-def test_unfold_maps_every_point_to_exactly_one_slot():
-    pts = synthetic_sweep()
-    un = unfold_scan(pts, rows=64, cols=512)
-    assert un.point_slot.shape == (len(pts),)
-    assert un.ranges.shape == (64, 512)
-    filled = un.representative >= 0
-    assert filled.sum() + un.collisions == len(pts)
-    # the representative is the nearest point of its slot
+def test_kitti_slots_hold_their_nearest_point(tmp_path):
+    root = make_kitti(tmp_path / "seq", frames=1)
+    pts = read_velodyne_bin(root / "velodyne" / "000000.bin")
+    scan = KittiSequence(root, cols=300)[0]  # fewer columns than firings: slots are shared
+    assert scan.point_slot.shape == (len(pts),)
+    assert scan.valid.sum() + scan.meta["collisions"] == len(pts)
     rng = np.linalg.norm(pts[:, :3], axis=1)
-    for slot in np.flatnonzero(filled)[:50]:
-        members = np.flatnonzero(un.point_slot == slot)
-        assert un.representative[slot] == members[np.argmin(rng[members])]
-        assert un.ranges.ravel()[slot] == pytest.approx(rng[members].min())
-    np.testing.assert_allclose(np.degrees(un.altitude[:8]), -20 + 2.5 * np.arange(8), atol=1e-3)
+    flat = scan.ranges.ravel()
+    for slot in np.unique(scan.point_slot)[:80]:
+        members = np.flatnonzero(scan.point_slot == slot)
+        assert flat[slot] == pytest.approx(rng[members].min())
+    shared = np.bincount(scan.point_slot) > 1
+    assert shared.any()
+    assert scan.meta["organize"]["collisions_pct"] == pytest.approx(100 * scan.meta["collisions"] / len(pts))
 
 
 def test_kitti_sequence_roundtrip(tmp_path):
@@ -99,21 +124,29 @@ def test_truncated_bin(tmp_path):
         KittiSequence(root)[0]
 
 
-def test_nan_in_bin(tmp_path):
+def test_nan_in_bin(tmp_path, caplog):
+    """NaN rows are no-return points: counted, warned about, label 0, every other point kept."""
     root = make_kitti(tmp_path / "seq", frames=1)
     f = root / "velodyne" / "000000.bin"
     pts = read_velodyne_bin(f)
     pts[5, 1] = np.nan
     pts.tofile(f)
     with pytest.raises(DataError, match=r"NaN or infinite.*index 5"):
-        KittiSequence(root)[0]
+        read_velodyne_bin(f)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.organize"):
+        scan = KittiSequence(root)[0]
+    assert scan.meta["organize"]["nonfinite_points"] == 1
+    assert "1 of 2012 points have no return" in caplog.text
+    assert scan.n_points == len(pts) and np.isfinite(scan.points()).all()
+    codes = scan.per_point(np.full(scan.shape, L.VEGETATION, np.uint8) * scan.valid)
+    assert codes[5] == L.NO_RETURN and (np.delete(codes, 5) == L.VEGETATION).all()
 
 
 def test_label_count_mismatch(tmp_path):
     root = make_kitti(tmp_path / "seq", frames=1)
     lab = root / "labels" / "000000.label"
     lab.write_bytes(lab.read_bytes()[:-8])
-    with pytest.raises(DataError, match=r"000000.label: 1598 labels for 1600 points"):
+    with pytest.raises(DataError, match=r"000000.label: 2010 labels for 2012 points"):
         KittiSequence(root)[0]
     lab.write_bytes(lab.read_bytes()[:-1])
     with pytest.raises(DataError, match="truncated"):
