@@ -11,7 +11,9 @@ fields, without per-point loops.
 Organising (``data_tools.organize``):
 
 - an organised cloud (``height > 1``, e.g. the Ouster ROS driver: ``height`` = beams) goes to
-  :meth:`Organizer.scan_organized` as the ``(height, width, 3)`` grid;
+  :meth:`Organizer.scan_organized` as the ``(height, width, 3)`` grid, unless its ring field
+  varies along a row (rows are then not beams, e.g. one firing per row: its points are
+  organised as an unorganised cloud);
 - an unorganised cloud (``height == 1``, e.g. the Velodyne ROS driver: x y z intensity ring
   time) goes to :meth:`Organizer.scan` with its ring field (``ring``, ``channel``,
   ``laser_id``, ...) when it has one.
@@ -297,7 +299,12 @@ class TimeField:
 
     def seconds(self, cloud: CloudMessage) -> np.ndarray:
         """Absolute time (s) of every point, ``float64 (N,)``."""
-        v = _column(cloud.points, self.name).astype(np.float64) * self.scale
+        raw = _column(cloud.points, self.name)
+        if raw.dtype.kind in "iu" and raw.size:  # offset from the smallest value first: exact in float64
+            base = raw.min()
+            v = (raw - base).astype(np.float64) * self.scale + float(base) * self.scale
+        else:
+            v = raw.astype(np.float64) * self.scale
         return v if self.absolute else v + cloud.stamp
 
 
@@ -343,7 +350,15 @@ def cloud_to_scan(
     inten_name = _first(names, INTENSITY_FIELDS)
     intensity = _column(cloud.points, inten_name).astype(np.float32) if inten_name else None
     frame_time = cloud.stamp
-    if cloud.height > 1:
+    ring_name = _first(names, RING_FIELDS)
+    ring = _column(cloud.points, ring_name).astype(np.int64) if ring_name else None
+    organised = cloud.height > 1
+    if organised and ring is not None:
+        grid = ring.reshape(cloud.height, cloud.width)
+        if not (grid == grid[:, :1]).all():  # rows are not rings (e.g. one firing per row): organise the points
+            organised = False
+            log.info("%s: organised cloud whose rows are not rings; organised from its %s field", source, ring_name)
+    if organised:
         h, w = cloud.height, cloud.width
         scan = organizer.scan_organized(
             xyz.reshape(h, w, 3),
@@ -354,8 +369,6 @@ def cloud_to_scan(
             frame_time=frame_time,
         )
     else:
-        ring_name = _first(names, RING_FIELDS)
-        ring = _column(cloud.points, ring_name).astype(np.int64) if ring_name else None
         scan = organizer.scan(
             xyz,
             ring=ring,
@@ -478,9 +491,11 @@ class RosbagSequence:
             self._reader.open()
         except Exception as exc:  # rosbags raises many types for damaged files
             self._reader = None
+            hint = " (an unindexed ROS 1 bag is repaired by `rosbag reindex`)" if kind == "ros1" else ""
             raise DataError(
-                f"{self.path}: cannot open recording (damaged or truncated?): {_describe_error(exc)}"
+                f"{self.path}: cannot open recording (damaged or truncated?): {_describe_error(exc)}{hint}"
             ) from exc
+        self._ros1 = not self._reader.is2
         try:
             self.topic, self.msgtype = self._choose_topic(topic)
             self._connections = [c for c in self._reader.connections if c.topic == self.topic]
@@ -529,13 +544,21 @@ class RosbagSequence:
         """One pass over the topic: log times and header stamps of every message."""
         log_times: list[int] = []
         stamps: list[float] = []
+        fast = False
         try:
             for conn, t, raw in self._reader.messages(connections=self._connections):
-                msg = self._reader.deserialize(raw, conn.msgtype)
                 if not log_times:  # the layout is checked on opening (fields, sizes)
+                    msg = self._reader.deserialize(raw, conn.msgtype)
                     decode_cloud(msg, self._source(0))
+                    stamp = int(msg.header.stamp.sec) + int(msg.header.stamp.nanosec) * 1e-9
+                    fast = _raw_stamp(raw, self._ros1) == stamp
+                elif fast:
+                    stamp = _raw_stamp(raw, self._ros1)
+                else:
+                    msg = self._reader.deserialize(raw, conn.msgtype)
+                    stamp = int(msg.header.stamp.sec) + int(msg.header.stamp.nanosec) * 1e-9
                 log_times.append(int(t))
-                stamps.append(int(msg.header.stamp.sec) + int(msg.header.stamp.nanosec) * 1e-9)
+                stamps.append(stamp)
         except DataError:
             raise
         except Exception as exc:
@@ -642,6 +665,21 @@ class RosbagSequence:
     def _check_open(self) -> None:
         if self._reader is None:
             raise DataError(f"{self.path}: recording is closed")
+
+
+def _raw_stamp(raw: bytes | memoryview, ros1: bool) -> float | None:
+    """Header stamp (s) read straight from a serialised message (checked against the full
+    deserialisation on the first message): ROS 1 ``seq, sec, nsec`` (little endian); CDR a
+    4-byte encapsulation header (byte 1: 0 big, 1 little endian), then ``sec, nanosec``."""
+    b = bytes(raw[:12])
+    if len(b) < 12:
+        return None
+    if ros1:
+        sec, nsec = int.from_bytes(b[4:8], "little"), int.from_bytes(b[8:12], "little")
+    else:
+        order = "little" if b[1] & 1 else "big"
+        sec, nsec = int.from_bytes(b[4:8], order, signed=True), int.from_bytes(b[8:12], order)
+    return sec + nsec * 1e-9
 
 
 def _is_pointcloud2(msgtype: str | None) -> bool:

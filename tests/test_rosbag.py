@@ -543,3 +543,39 @@ def test_real_ouster_sweeps_as_an_ouster_ros_bag_classify_like_the_npz_reader(ou
         assert got.scan.meta["organize"]["warnings"] == []
         same = (got.point_labels()[ok] == ref.labels.reshape(-1)[ok]).mean()
         assert same >= 0.99, f"{f.name}: PRC labels equal on {same:.4f} of returns"
+
+
+def test_organised_cloud_whose_rows_are_firings_is_organised_by_its_ring_field(sims, tmp_path):
+    """height = columns, width = beams (one firing per row): the ring field varies along a row,
+    so the rows are not beams; the points are organised from the ring field instead."""
+    model, frames = sims["hdl64"]
+    frame = frames[0]
+    cloud, _ = ouster_cloud(frame, model)
+    rows, cols = model.rows, model.cols
+    firing = cloud.points.reshape(rows, cols).T.copy()  # (cols, rows): one firing per row
+    path = tmp_path / "transposed.mcap"
+    write_bag(path, "mcap", [cloud_from_records(firing.reshape(-1), height=cols, stamp_ns=EPOCH * 10**9)])
+    scan = open_dataset(path)[0]
+    assert scan.meta["organize"]["method"] == "ring-field" and scan.shape == (rows, cols)
+    truth = (np.arange(rows)[None, :] * cols + np.arange(cols)[:, None]).reshape(-1)
+    valid = frame.ranges.reshape(-1)[truth] > 0
+    assert (scan.point_slot[valid] // cols == truth[valid] // cols).all()  # every return on its beam's row
+
+
+def test_time_fields_absolute_seconds_and_relative_nanoseconds():
+    """Hesai-style absolute float64 seconds and Livox-style ``offset_time`` (uint32 ns from the stamp)."""
+    from data_tools.rosbag import detect_time_field
+
+    stamp_ns = 1_700_000_000_250_000_000
+    offsets = np.arange(0, 100_000_000, 1_000_000, dtype=np.uint32)  # 0 .. 99 ms
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    hesai = np.zeros(len(offsets), np.dtype([*fields, ("timestamp", "<f8")]))
+    hesai["timestamp"] = stamp_ns * 1e-9 + offsets * 1e-9
+    livox = np.zeros(len(offsets), np.dtype([*fields, ("offset_time", "<u4")]))
+    livox["offset_time"] = offsets
+    expected = 0.25 + offsets * 1e-9
+    for rec, unit, absolute in ((hesai, "s", True), (livox, "ns", False)):
+        cloud = cloud_from_records(rec, stamp_ns=stamp_ns)
+        tf = detect_time_field(cloud, period=0.1)
+        assert (tf.unit, tf.absolute) == (unit, absolute)
+        np.testing.assert_allclose(tf.seconds(cloud) - 1_700_000_000, expected, atol=1e-6)
