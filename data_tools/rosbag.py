@@ -309,13 +309,17 @@ class TimeField:
 
 
 def detect_time_field(cloud: CloudMessage, period: float | None) -> TimeField | None:
-    """The per-point time field of ``cloud`` and its unit, or None when it has none."""
+    """The per-point time field of ``cloud`` and its unit, or None when it has none or when it
+    holds one value for every point (a driver that leaves it unset; logged)."""
     name = _first(cloud.names, TIME_FIELDS)
     if name is None:
         return None
     raw = _column(cloud.points, name)
-    unit, scale = time_unit(raw, period)
     finite = raw[np.isfinite(raw)] if raw.dtype.kind == "f" else raw
+    if finite.size == 0 or finite.min() == finite.max():
+        log.info("per-point time field %r is constant in the first sweep; ignored", name)
+        return None
+    unit, scale = time_unit(raw, period)
     absolute = bool(finite.size) and float(np.abs(finite.astype(np.float64)).max()) * scale > ABSOLUTE_TIME_S
     return TimeField(name, unit, scale, absolute)
 

@@ -579,3 +579,5 @@ def test_time_fields_absolute_seconds_and_relative_nanoseconds():
         tf = detect_time_field(cloud, period=0.1)
         assert (tf.unit, tf.absolute) == (unit, absolute)
         np.testing.assert_allclose(tf.seconds(cloud) - 1_700_000_000, expected, atol=1e-6)
+    zero = np.zeros(10, np.dtype([*fields, ("t", "<u4")]))
+    assert detect_time_field(cloud_from_records(zero, stamp_ns=stamp_ns), period=0.1) is None  # unset: ignored
