@@ -7,18 +7,24 @@ from pathlib import Path
 import typer
 
 from prc_slam.cli.common import (
+    COLS_OPT,
     CONNECT_OPT,
     EVERY_OPT,
     FORMAT_OPT,
     JSON_OPT,
     MAX_FRAMES_OPT,
+    META_OPT,
+    MODEL_OPT,
+    ROWS_OPT,
     RRD_OPT,
     SERVE_OPT,
+    TOPIC_OPT,
     Mode,
     Preset,
     class_table,
     console,
     handles_errors,
+    input_options,
     prc_config,
     print_table,
     wrote,
@@ -37,6 +43,11 @@ def classify(
     preset: Preset = typer.Option(Preset.paper, help="paper parameters, or our multi-beam setting"),
     adaptive: bool | None = typer.Option(None, "--adaptive/--fixed", help="scale xi_s, xi_p with slot spacing"),
     config: Path | None = typer.Option(None, help="YAML config (overrides mode/preset)"),
+    topic: str | None = TOPIC_OPT,
+    meta: Path | None = META_OPT,
+    model: str | None = MODEL_OPT,
+    rows: int | None = ROWS_OPT,
+    cols: int | None = COLS_OPT,
     fmt: str | None = FORMAT_OPT,
     destaggered: bool = typer.Option(False, help="Ouster: destagger rows by pixel_shift_by_row"),
     max_frames: int | None = MAX_FRAMES_OPT,
@@ -55,7 +66,7 @@ def classify(
     from prc_slam.jobs.progress import progress
 
     cfg = prc_config(mode, preset, adaptive, config)
-    opts = {"destaggered": destaggered} if destaggered else {}
+    opts = input_options(topic, meta, model, rows, cols, destaggered)
     viewer = Viewer(rrd, connect, serve_web, log_every)
     with progress() as reporter:
         metrics, written = classify_job(
@@ -95,6 +106,11 @@ def summary(metrics: dict, title: str) -> None:
 @handles_errors
 def detect(
     input: Path = typer.Argument(..., help="any supported input (KITTI, Ouster pcap/npz, bag, MCAP, PCD folder, ...)"),
+    topic: str | None = TOPIC_OPT,
+    meta: Path | None = META_OPT,
+    model: str | None = MODEL_OPT,
+    rows: int | None = ROWS_OPT,
+    cols: int | None = COLS_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     labels_out: Path | None = typer.Option(None, help="write NNNNNN.label per frame here"),
@@ -118,7 +134,7 @@ def detect(
     with progress() as reporter:
         metrics, written = detect_job(
             input, paper=paper, fmt=fmt, max_frames=max_frames, outputs=Outputs(labels_out, las), viewer=viewer,
-            reporter=reporter,
+            reporter=reporter, **input_options(topic, meta, model, rows, cols),
         )  # fmt: skip
     seconds, points = metrics["seconds"], metrics["points"]
     warm = metrics["points_per_s_after_first"]

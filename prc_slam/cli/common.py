@@ -228,6 +228,21 @@ def run_config(preset: Preset, config_path: Path | None, mode: Mode = Mode.urban
     return Config(prc=prc_config(mode, preset, None, None), classaware=ClassAwareConfig.for_mode(mode.value))
 
 
+def input_options(
+    topic: str | None = None,
+    meta: Path | None = None,
+    model: str | None = None,
+    rows: int | None = None,
+    cols: int | None = None,
+    destaggered: bool = False,
+) -> dict[str, Any]:
+    """The reader options given on the command line (only those set), for ``open_dataset``."""
+    opts: dict[str, Any] = {"topic": topic, "meta": meta, "model": model, "rows": rows, "cols": cols}
+    if destaggered:
+        opts["destaggered"] = True
+    return {k: v for k, v in opts.items() if v is not None}
+
+
 def variant_list(text: str) -> list[str]:
     names = [v.strip() for v in text.split(",") if v.strip()]
     if not names:
@@ -251,6 +266,11 @@ SERVE_SECONDS_OPT = typer.Option(
 )
 WEB_PORT_OPT = typer.Option(None, "--web-port", min=1, max=65535, help="with --serve-web: HTTP port (default 9090)")
 GRPC_PORT_OPT = typer.Option(None, "--grpc-port", min=1, max=65535, help="with --serve-web: stream port (default 9876)")
+TOPIC_OPT = typer.Option(None, "--topic", help="bags/MCAP: the PointCloud2 topic (when there are several)")
+META_OPT = typer.Option(None, "--meta", help="Ouster pcap: the sensor's metadata json (default: beside the pcap)")
+MODEL_OPT = typer.Option(None, "--model", help="Velodyne pcap: the sensor model (default: from the packets)")
+ROWS_OPT = typer.Option(None, "--rows", min=1, help="unorganised sweeps: the sensor's beams (default: estimated)")
+COLS_OPT = typer.Option(None, "--cols", min=1, help="unorganised sweeps: columns per sweep (default: estimated)")
 FORMAT_OPT = typer.Option(None, "--format", help="input format (default: detected)")
 MAX_FRAMES_OPT = typer.Option(None, "--max-frames", min=1, help="use only the first N frames")
 JSON_OPT = typer.Option(None, "--json", help="write the metrics JSON here")

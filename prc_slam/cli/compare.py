@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from prc_slam.cli.common import (
+    COLS_OPT,
     CONNECT_OPT,
     EVERY_OPT,
     FORMAT_OPT,
@@ -15,15 +16,20 @@ from prc_slam.cli.common import (
     JSON_OPT,
     MAP_VOXEL_OPT,
     MAX_FRAMES_OPT,
+    META_OPT,
+    MODEL_OPT,
+    ROWS_OPT,
     RRD_OPT,
     SERVE_OPT,
     SERVE_SECONDS_OPT,
+    TOPIC_OPT,
     WEB_PORT_OPT,
     Mode,
     Preset,
     class_table,
     console,
     handles_errors,
+    input_options,
     print_table,
     run_config,
     variant_list,
@@ -63,6 +69,11 @@ def compare(
     out: Path = typer.Option(Path("out/compare"), help="output directory"),
     preset: Preset = typer.Option(Preset.multibeam, help="PRC parameters for the prc variant"),
     config: Path | None = typer.Option(None, help="YAML config (prc, filter, odometry sections)"),
+    topic: str | None = TOPIC_OPT,
+    meta: Path | None = META_OPT,
+    model: str | None = MODEL_OPT,
+    rows: int | None = ROWS_OPT,
+    cols: int | None = COLS_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     rrd: Path | None = RRD_OPT,
@@ -96,6 +107,7 @@ def compare(
         run, prc_labels = run_odometry(
             input, cfg, names, fmt=fmt, max_frames=max_frames, online=online, score_prc=True, viewer=viewer,
             reporter=reporter, keep_labels_every=mapclass_every if mapclass else None,
+            **input_options(topic, meta, model, rows, cols),
         )  # fmt: skip
     written = run.written + write_outputs(run, cfg, out, f"Odometry comparison on {input}")
     print_table(variant_table(run.metrics, f"odometry on {input}"))
@@ -109,7 +121,8 @@ def compare(
         from prc_slam.report import mapclass_section
 
         variant = next((v for v in names if v != "raw"), names[0])
-        mc = compare_mapclass(input, fmt, run, variant, mapclass_every, prc_labels, cfg, out)
+        opts = input_options(topic, meta, model, rows, cols)
+        mc = compare_mapclass(input, fmt, run, variant, mapclass_every, prc_labels, cfg, out, **opts)
         console.print(
             f"map: {mc['map_points']:,} points from every {mapclass_every}th frame at the {variant} poses",
             highlight=False,
@@ -133,6 +146,11 @@ def odometry(
     poses_out: Path | None = typer.Option(None, help="write the trajectory here"),
     pose_format: PoseFormat = typer.Option(PoseFormat.kitti, help="trajectory file format"),
     json_path: Path | None = JSON_OPT,
+    topic: str | None = TOPIC_OPT,
+    meta: Path | None = META_OPT,
+    model: str | None = MODEL_OPT,
+    rows: int | None = ROWS_OPT,
+    cols: int | None = COLS_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     rrd: Path | None = RRD_OPT,
@@ -153,7 +171,7 @@ def odometry(
     with progress() as reporter:
         run, _ = run_odometry(
             input, cfg, [name], fmt=fmt, max_frames=max_frames, viewer=Viewer(rrd, connect, serve_web, log_every),
-            reporter=reporter,
+            reporter=reporter, **input_options(topic, meta, model, rows, cols),
         )  # fmt: skip
     written = list(run.written)
     if poses_out is not None:
@@ -168,6 +186,11 @@ def odometry(
 def view(
     input: Path = typer.Argument(..., help="any supported input (KITTI, simulated, Ouster, bag, MCAP, PCD folder)"),
     max_frames: int | None = MAX_FRAMES_OPT,
+    topic: str | None = TOPIC_OPT,
+    meta: Path | None = META_OPT,
+    model: str | None = MODEL_OPT,
+    rows: int | None = ROWS_OPT,
+    cols: int | None = COLS_OPT,
     fmt: str | None = FORMAT_OPT,
     online: bool = typer.Option(True, "--online/--no-online", help="also run and show the online detectors"),
     log_every: int = typer.Option(1, "--log-every", min=1, help="log clouds and images on every n-th frame"),
@@ -184,4 +207,5 @@ def view(
         run_odometry(
             input, cfg, ["raw", "prc"], fmt=fmt, max_frames=max_frames, online=online,
             viewer=Viewer(spawn=True, every=log_every), reporter=reporter,
+            **input_options(topic, meta, model, rows, cols),
         )  # fmt: skip

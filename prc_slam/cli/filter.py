@@ -8,13 +8,18 @@ from pathlib import Path
 import typer
 
 from prc_slam.cli.common import (
+    COLS_OPT,
     FORMAT_OPT,
     JSON_OPT,
     MAX_FRAMES_OPT,
+    META_OPT,
+    MODEL_OPT,
+    ROWS_OPT,
     Mode,
     Preset,
     console,
     handles_errors,
+    input_options,
     run_config,
     wrote,
 )
@@ -51,6 +56,10 @@ def filter_stream(
     mode: Mode = typer.Option(Mode.urban, help="PRC classes: urban or forest"),
     preset: Preset = typer.Option(Preset.multibeam, help="PRC parameters"),
     config: Path | None = typer.Option(None, help="YAML config (prc and filter sections)"),
+    meta: Path | None = META_OPT,
+    model: str | None = MODEL_OPT,
+    rows: int | None = ROWS_OPT,
+    cols: int | None = COLS_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     json_path: Path | None = JSON_OPT,
@@ -70,7 +79,7 @@ def filter_stream(
         metrics = filter_job(
             input, cfg, out, fmt=fmt, max_frames=max_frames, keep_labels=keep,
             out_format=None if out_format is None else out_format.value, label_dtype=label_type.value,
-            overwrite=overwrite, reporter=reporter, **({"topic": topic} if topic else {}),
+            overwrite=overwrite, reporter=reporter, **input_options(topic, meta, model, rows, cols),
         )  # fmt: skip
     kept = metrics.get("kept_fraction")
     console.print(

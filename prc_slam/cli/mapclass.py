@@ -9,15 +9,21 @@ from typing import Any
 import typer
 
 from prc_slam.cli.common import (
+    COLS_OPT,
     CONNECT_OPT,
     FORMAT_OPT,
     JSON_OPT,
     MAX_FRAMES_OPT,
+    META_OPT,
+    MODEL_OPT,
+    ROWS_OPT,
     RRD_OPT,
     SERVE_OPT,
+    TOPIC_OPT,
     class_table,
     console,
     handles_errors,
+    input_options,
     print_table,
     say,
     wrote,
@@ -61,6 +67,11 @@ def mapclass(
         None, min=0.0, help="tile side (m); 0: one piece; default: tiles above 12 M points"
     ),
     margin: float = typer.Option(6.0, min=0.0, help="context around each tile (m)"),
+    topic: str | None = TOPIC_OPT,
+    meta: Path | None = META_OPT,
+    model: str | None = MODEL_OPT,
+    rows: int | None = ROWS_OPT,
+    cols: int | None = COLS_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     every: int = typer.Option(1, min=1, help="sequence: accumulate every n-th frame"),
@@ -87,7 +98,7 @@ def mapclass(
     with progress() as reporter:
         metrics = mapclass_job(
             input, cfg, out, tile=tile, margin=margin, fmt=fmt, max_frames=max_frames, every=every, poses=poses,
-            viewer=viewer, reporter=reporter, note=say,
+            viewer=viewer, reporter=reporter, note=say, **input_options(topic, meta, model, rows, cols),
         )  # fmt: skip
     print_mapclass(metrics, f"map classification of {input}")
     written = [out / "map_classified.las"]

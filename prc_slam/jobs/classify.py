@@ -96,13 +96,14 @@ def detect_job(
     outputs: Outputs | None = None,
     viewer: Viewer | None = None,
     reporter: Reporter | None = None,
+    **open_options: Any,
 ) -> tuple[dict[str, Any], list[Path]]:
     """The online detectors (paper 001) on every frame; returns the ``detect`` metrics and files."""
     from prc_slam.online import OnlineDetector
 
     outputs = outputs or Outputs()
     viewer = viewer or Viewer()
-    dataset, n = open_input(input, fmt, max_frames)
+    dataset, n = open_input(input, fmt, max_frames, **open_options)
     scorer = OnlineScorer()
     sinks, las = _file_sinks(outputs, "online")
     detector = OnlineDetector.paper() if paper else OnlineDetector()

@@ -116,6 +116,7 @@ def mapclass_job(
     viewer: Viewer | None = None,
     reporter: Reporter | None = None,
     note: Callable[[str], None] | None = None,
+    **open_options: Any,
 ) -> dict[str, Any]:
     """Classify a cloud file, or a sequence accumulated at its poses (ground truth or ``poses``)."""
     from data_tools.clouds import cloud_chunks, cloud_size, is_cloud_file
@@ -128,7 +129,7 @@ def mapclass_job(
             lambda: cloud_chunks(input), cloud_size(input), cfg, out, tile, margin, viewer=viewer, reporter=reporter
         )
     else:
-        dataset, n = open_input(input, fmt, max_frames)
+        dataset, n = open_input(input, fmt, max_frames, **open_options)
         cloud = map_from_dataset(dataset, n, every, poses)
         if note is not None:
             note(f"accumulated {len(cloud):,} points from {len(range(0, n, every))} frames")
@@ -142,14 +143,22 @@ def mapclass_job(
 
 
 def compare_mapclass(
-    input: Path, fmt: str | None, run, variant: str, every: int, prc_labels: dict, cfg: Config, out: Path
+    input: Path,
+    fmt: str | None,
+    run,
+    variant: str,
+    every: int,
+    prc_labels: dict,
+    cfg: Config,
+    out: Path,
+    **open_options: Any,
 ) -> dict[str, Any]:
     """``compare --mapclass``: the map accumulated at ``variant``'s poses, classified after
     registration, and PRC's agreement with it."""
     from prc_slam.jobs.common import open_input
     from prc_slam.mapclass.tiles import array_chunks
 
-    dataset, _ = open_input(input, fmt)
+    dataset, _ = open_input(input, fmt, **open_options)
     n = len(run.result.times)
     cloud = map_from_dataset(dataset, n, every, run.result.estimate_in_world(variant), prc_labels or None)
     mc = classify_map(
