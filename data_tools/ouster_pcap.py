@@ -46,7 +46,7 @@ def find_metadata(pcap: str | Path, meta: str | Path | None = None) -> Path:
     if prefixed:
         return max(prefixed, key=lambda j: len(j.stem))
     raise DataError(
-        f"{pcap}: no Ouster sensor metadata: expected {exact.name} beside it (or pass meta=PATH to the json)"
+        f"{pcap}: no Ouster sensor metadata: expected {exact.name} beside it (or give the json with --meta PATH)"
     )
 
 
