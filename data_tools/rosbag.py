@@ -663,12 +663,43 @@ class RosbagSequence:
             yield int(t), self.decode(i, raw, conn.msgtype)
 
     def __iter__(self) -> Iterator[Scan]:
-        for i, (_t, cloud) in enumerate(self.clouds()):
-            yield self._scan(i, cloud)
+        """Stream the topic as Scans. A message that cannot be decoded or organised raises
+        :class:`DataError` for that frame only: iteration can go on with the next message (a
+        caller that skips bad frames loses nothing else). A damaged stream ends iteration."""
+        self._check_open()
+        return _ScanIterator(self)
 
     def _check_open(self) -> None:
         if self._reader is None:
             raise DataError(f"{self.path}: recording is closed")
+
+
+class _ScanIterator:
+    """Iterator of :meth:`RosbagSequence.__iter__` (survives a bad frame, unlike a generator)."""
+
+    def __init__(self, seq: RosbagSequence) -> None:
+        self.seq = seq
+        self.stream = seq._reader.messages(connections=seq._connections)
+        self.i = 0
+        self.done = False
+
+    def __iter__(self) -> _ScanIterator:
+        return self
+
+    def __next__(self) -> Scan:
+        seq, i = self.seq, self.i
+        if self.done or i >= len(seq):
+            raise StopIteration
+        try:
+            conn, _t, raw = next(self.stream)
+        except StopIteration:
+            self.done = True
+            raise DataError(f"{seq.path}: topic {seq.topic} ended after {i} of {len(seq)} messages") from None
+        except Exception as exc:
+            self.done = True
+            raise DataError(f"{seq._source(i)}: cannot read message: {_describe_error(exc)}") from exc
+        self.i += 1
+        return seq._scan(i, seq.decode(i, raw, conn.msgtype))
 
 
 def _raw_stamp(raw: bytes | memoryview, ros1: bool) -> float | None:

@@ -581,3 +581,24 @@ def test_time_fields_absolute_seconds_and_relative_nanoseconds():
         np.testing.assert_allclose(tf.seconds(cloud) - 1_700_000_000, expected, atol=1e-6)
     zero = np.zeros(10, np.dtype([*fields, ("t", "<u4")]))
     assert detect_time_field(cloud_from_records(zero, stamp_ns=stamp_ns), period=0.1) is None  # unset: ignored
+
+
+def test_a_bad_message_fails_its_frame_only(layout_bags, tmp_path):
+    """Message 1 of 3 has no x field: iteration raises for it and goes on (the Pipeline skips it)."""
+    from prc_slam.pipeline import Pipeline
+
+    _p, built, _m, _f = layout_bags["velodyne"]
+    first, last = built[0][0], built[1][0]
+    between = round((first.stamp + last.stamp) / 2 * 1e9)
+    bad = cloud_from_records(np.zeros(10, np.dtype([("a", "<f4"), ("y", "<f4"), ("z", "<f4")])), stamp_ns=between)
+    path = tmp_path / "mixed.bag"
+    write_bag(path, "ros1", [first, bad, last])
+    it = iter(open_dataset(path))
+    assert next(it).name == "000000"
+    with pytest.raises(DataError, match=r"mixed\.bag#/points\[1\]: PointCloud2 has no x field"):
+        next(it)
+    assert next(it).name == "000002"
+    with pytest.raises(StopIteration):
+        next(it)
+    result = Pipeline(prc=PRCConfig()).run(open_dataset(path))
+    assert result.frames == 2 and len(result.skipped) == 1
