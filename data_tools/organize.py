@@ -74,6 +74,7 @@ class OrganizeReport:
     empty_rows: int
     nonfinite_points: int
     warnings: list[str] = field(default_factory=list)
+    multi_returns: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -84,6 +85,7 @@ class OrganizeReport:
             "collisions_pct": float(self.collisions_pct),
             "empty_rows": int(self.empty_rows),
             "nonfinite_points": int(self.nonfinite_points),
+            "multi_returns": int(self.multi_returns),
             "warnings": list(self.warnings),
         }
 
@@ -428,12 +430,16 @@ def _scatter(az, rng, row, a0, s, inv_step, phase, rows, cols):
     """Slot of every point and the nearest point (representative) of every slot.
 
     Returns ``point_slot`` (-1 for no-return points), ``representative`` (-1 for empty
-    slots), points per row, and the number of points sharing a slot with a nearer one."""
+    slots), points per row, the number of points sharing a slot with another, and how many of
+    those are further returns of the same firing (the same azimuth to 1 % of a column: dual
+    or multiple returns, which share their slot by nature)."""
     n = az.shape[0]
     slot = np.full(n, -1, np.int64)
     rep = np.full(rows * cols, -1, np.int64)
     per_row = np.zeros(rows, np.int64)
     collisions = 0
+    multi = 0
+    same = 0.01 / inv_step
     for i in range(n):
         r = row[i]
         if r < 0:
@@ -448,9 +454,11 @@ def _scatter(az, rng, row, a0, s, inv_step, phase, rows, cols):
             rep[k] = i
         else:
             collisions += 1
+            if abs(_wrap(az[i] - az[j])) < same:
+                multi += 1
             if rng[i] < rng[j]:
                 rep[k] = i
-    return slot, rep, per_row, collisions
+    return slot, rep, per_row, collisions, multi
 
 
 @njit(cache=True, nogil=True)
@@ -489,17 +497,18 @@ def _beam_bounds(beam_te: np.ndarray) -> np.ndarray:
 
 
 def estimate_beams(
-    te: np.ndarray, rng: np.ndarray, expected: int | None = None, resolution_deg: float = 0.02
+    te: np.ndarray, rng: np.ndarray, expected: int | None = None, resolution_deg: float = 0.02, near: float = 0.3
 ) -> tuple[np.ndarray, float]:
     """Beam elevations (as tangents, top beam first) from the peaks of an elevation histogram.
 
-    Points nearer than the 20th range percentile (at most 3 m) are left out, since beam origin
-    offsets bend their elevation. Returns the table and its *concentration*: the share of
-    points within a quarter of the local beam gap of their beam (near 1 for a multi-beam
-    sensor, about 0.5 for elevations without beam structure).
+    ``te`` should be corrected for the beam origin offset (:func:`estimate_beam_offset`);
+    points nearer than ``near`` metres are left out (the lowest beams of a sensor on a car
+    may only see the ground within a few metres, so no more is dropped). Returns the table
+    and its *concentration*: the share of points within a quarter of the local beam gap of
+    their beam (near 1 for a multi-beam sensor, about 0.5 for elevations without beam
+    structure).
     """
     el = np.degrees(np.arctan(te))
-    near = min(3.0, float(np.percentile(rng, 20))) if len(rng) else 0.0
     use = el[rng >= near] if (rng >= near).sum() > 0.5 * len(rng) else el
     nb = round(180.0 / resolution_deg)
     hist, edges = np.histogram(use, bins=nb, range=(-90.0, 90.0))
@@ -693,8 +702,8 @@ class Organizer:
         if self.phase is None or len(self.phase) != rows:
             phase, strength = _row_phase(az, row, rows, a0, s, inv_step)
             self.phase = np.where(strength > 0.3, phase, 0.5)
-        slot, rep, per_row, collisions = _scatter(az, rng, row, a0, s, inv_step, self.phase, rows, cols)
-        report = self._check(method, rows, cols, per_row, collisions, n_ok, n - n_ok, source, warnings)
+        slot, rep, per_row, collisions, multi = _scatter(az, rng, row, a0, s, inv_step, self.phase, rows, cols)
+        report = self._check(method, rows, cols, per_row, collisions, n_ok, n - n_ok, source, warnings, multi)
         return self._build(
             cloud, ok, rng, te, slot, rep, rows, cols, s, a0, times, intensity, name, source, frame_time,
             gt_point_labels, gt_point_instance, gt_pose, report, collisions,
@@ -942,15 +951,19 @@ class Organizer:
             steps = np.concatenate(parts) if parts else steps
         if len(steps) < 10:
             raise DataError(f"{source}: cannot estimate the column count (too few points along the rings)")
-        step = float(np.median(steps))
+        # the firing step: steps over missing returns are whole multiples of it, so keep the
+        # steps near the lower quartile (a sparse ring's median would skip firings)
+        q = float(np.percentile(steps, 25))
+        step = float(np.median(steps[steps < 1.5 * q]))
         self.cols = max(1, round(TWO_PI / step))
         return self.cols
 
     # ------------------------------------------------------------------ checks and the Scan
-    def _check(self, method, rows, cols, per_row, collisions, n_ok, n_bad, source, warnings) -> OrganizeReport:
+    def _check(self, method, rows, cols, per_row, collisions, n_ok, n_bad, source, warnings, multi=0) -> OrganizeReport:
         found = int((per_row > 0).sum())
         empty = int(rows - found)
-        coll = collisions / max(n_ok, 1)
+        # further returns of one firing share their slot by nature: only the others count
+        coll = (collisions - multi) / max(n_ok, 1)
         expected = self.expected_rows
         if n_ok > 4 * cols and coll > MAX_COLLISIONS:
             raise DataError(
@@ -961,8 +974,8 @@ class Organizer:
             raise DataError(f"{source}: cannot organise: all {n_ok} points fell in one ring ({method})")
         if coll > WARN_COLLISIONS:
             warnings.append(
-                f"{source}: {100 * coll:.1f}% of the points share a range-image slot "
-                f"(method {method}, {found} rings, {cols} columns)"
+                f"{source}: {100 * coll:.1f}% of the points share a range-image slot with a point of another "
+                f"firing (method {method}, {found} rings, {cols} columns)"
             )
         if expected is not None and found < 0.75 * expected:
             warnings.append(f"{source}: {found} rings found, the sensor has {expected}")
@@ -974,7 +987,9 @@ class Organizer:
             log.warning(w)
         self.warnings_total += len(warnings)
         self.frames += 1
-        return OrganizeReport(method, found, expected, cols, 100.0 * coll, empty, n_bad, warnings)
+        return OrganizeReport(
+            method, found, expected, cols, 100.0 * collisions / max(n_ok, 1), empty, n_bad, warnings, int(multi)
+        )
 
     def _build(
         self, xyz, ok, rng, te, slot, rep, rows, cols, s, a0, times, intensity, name, source, frame_time,

@@ -1,0 +1,361 @@
+"""The organiser (data_tools.organize): any sweep of points -> a range image with an exact slot map.
+
+Hand-made sweeps with known rings and firings, hypothesis properties (one slot per point,
+labels back in input order, the same organisation for every order of one sweep), KITTI-layout
+bins written from the shared Ouster sweeps (ring-major both ways, column-major) scored against
+the sensor's own (beam, measurement) grid, the real multi-sensor sweeps, and bad input.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from data_tools.errors import DataError
+from data_tools.organize import Organizer, estimate_beam_offset
+from prc_slam import labels as L
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+OUSTER = sorted((DATA / "ouster" / "decoded").glob("*.npz"))
+MULTI = DATA / "multisensor"
+
+
+def spinning_sweep(rings=8, cols=360, keep=0.8, seed=0, direction=1, el0=-15.0, del_=2.0, az0=0.0):
+    """A spinning sensor's sweep: ``rings`` beams ``del_`` degrees apart, ``cols`` firings per
+    turn, each return kept with probability ``keep``. Returns xyz (ring-major, azimuth turning
+    in ``direction``) and every point's beam and firing."""
+    rng = np.random.default_rng(seed)
+    beam, firing = np.meshgrid(np.arange(rings), np.arange(cols), indexing="ij")
+    beam, firing = beam.ravel(), firing.ravel()
+    kept = rng.random(beam.size) < keep
+    beam, firing = beam[kept], firing[kept]
+    az = np.radians(az0) + direction * (firing + 0.5) * 2 * np.pi / cols
+    el = np.radians(el0 + del_ * (rings - 1 - beam))  # beam 0 is the top beam
+    r = rng.uniform(3.0, 40.0, beam.size)
+    xyz = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], axis=1)
+    return xyz.astype(np.float32), beam, firing
+
+
+def column_major(beam, firing):
+    """The order that lists all beams of one firing, then the next firing."""
+    return np.lexsort((beam, firing))
+
+
+def slot_agreement(scan, beam, col) -> float:
+    """Share of points in their true slot, up to the organiser's own row numbering, a column
+    shift per beam and the column direction (both are the organiser's free choices)."""
+    cols = scan.shape[1]
+    row, c = np.divmod(scan.point_slot, cols)
+    best = 0.0
+    for sign in (1, -1):
+        key = (c - sign * col) % cols
+        good = np.zeros(len(beam), bool)
+        used: set[int] = set()
+        for b in np.unique(beam):
+            sel = beam == b
+            pairs = row[sel] * cols + key[sel]
+            u, n = np.unique(pairs, return_counts=True)
+            k = int(u[np.argmax(n)])
+            if k // cols in used:  # two beams in one row: the smaller one counts as wrong
+                continue
+            used.add(k // cols)
+            good[sel] = pairs == k
+        best = max(best, float(good.mean()))
+    return best
+
+
+# ----------------------------------------------------------------------------- hand-made sweeps
+
+
+def test_small_sweep_by_hand():
+    """2 beams x 16 firings, ring-major: every point in the slot of its beam and firing."""
+    xyz, beam, firing = spinning_sweep(rings=2, cols=16, keep=1.0, del_=10.0)
+    scan = Organizer(cols=16).scan(xyz)
+    assert scan.shape == (2, 16)
+    assert scan.meta["organize"]["method"] == "ring-major"
+    row, col = np.divmod(scan.point_slot, 16)
+    np.testing.assert_array_equal(row, beam)  # top beam first
+    np.testing.assert_array_equal(col, firing)  # column 0 is the first firing
+    np.testing.assert_allclose(scan.ranges.ravel()[scan.point_slot], np.linalg.norm(xyz, axis=1), rtol=1e-6)
+    np.testing.assert_allclose(np.degrees(scan.sensor.altitude), [-5.0, -15.0], atol=1e-4)
+    # the sensor model puts every slot where its point is
+    rays = scan.sensor.to_xyz(scan.ranges).reshape(-1, 3)[scan.point_slot]
+    np.testing.assert_allclose(rays, xyz, atol=1e-3 * np.linalg.norm(xyz, axis=1).max())
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+@pytest.mark.parametrize("layout", ["ring-major", "ring-major-reversed", "column-major", "shuffled"])
+def test_layouts_give_the_true_slots(layout, direction):
+    xyz, beam, firing = spinning_sweep(rings=16, cols=720, keep=0.7, direction=direction, seed=3)
+    order = {
+        "ring-major": np.arange(len(xyz)),
+        "ring-major-reversed": np.arange(len(xyz))[::-1],
+        "column-major": column_major(beam, firing),
+        "shuffled": np.random.default_rng(1).permutation(len(xyz)),
+    }[layout]
+    scan = Organizer().scan(xyz[order])
+    rep = scan.meta["organize"]
+    expected_method = {"shuffled": "beams", "column-major": "column-major"}.get(layout, "ring-major")
+    assert rep["method"] == expected_method
+    assert (rep["rings"], rep["cols"], rep["collisions_pct"], rep["warnings"]) == (16, 720, 0.0, [])
+    assert slot_agreement(scan, beam[order], firing[order]) == 1.0
+
+
+def test_ring_field_any_numbering():
+    """Interleaved channel ids (VLP-16 style) go to rows by elevation, top beam first."""
+    xyz, beam, firing = spinning_sweep(rings=16, cols=900, keep=0.9, seed=2)
+    ids = np.array([0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13, 6, 14, 7, 15])[beam] + 100
+    order = column_major(beam, firing)
+    scan = Organizer().scan(xyz[order], ring=ids[order])
+    assert scan.meta["organize"]["method"] == "ring-field"
+    np.testing.assert_array_equal(scan.point_slot // scan.shape[1], beam[order])
+
+
+def test_beam_table_kept_across_frames():
+    """A later sweep missing a beam keeps every other beam in its row (the table is per sequence)."""
+    org = Organizer()
+    xyz, *_ = spinning_sweep(rings=8, cols=360, seed=0)
+    first = org.scan(xyz[np.argsort(np.random.default_rng(0).random(len(xyz)))])
+    xyz2, beam2, _ = spinning_sweep(rings=8, cols=360, seed=1)
+    keep = beam2 != 3
+    second = org.scan(xyz2[keep])
+    assert first.shape == second.shape == (8, 360)
+    np.testing.assert_array_equal(second.point_slot // 360, beam2[keep])
+    rep = second.meta["organize"]
+    assert rep["rings"] == 7 and rep["empty_rows"] == 1
+
+
+def test_no_return_points_keep_their_entry():
+    xyz, *_ = spinning_sweep(rings=4, cols=180, seed=4)
+    xyz = xyz.copy()
+    xyz[[3, 50]] = np.nan
+    xyz[77] = 0.0
+    scan = Organizer().scan(xyz)
+    assert scan.meta["organize"]["nonfinite_points"] == 3
+    assert scan.n_points == len(xyz) and np.isfinite(scan.points()).all()
+    assert (scan.points()[[3, 50, 77]] == 0).all()
+    labels = np.where(scan.valid, L.BUILDING, L.NO_RETURN).astype(np.uint8)
+    per_point = scan.per_point(labels)
+    assert (per_point[[3, 50, 77]] == L.NO_RETURN).all()
+    assert (np.delete(per_point, [3, 50, 77]) == L.BUILDING).all()
+
+
+def test_per_point_times_and_attributes():
+    xyz, beam, firing = spinning_sweep(rings=4, cols=360, seed=5)
+    times = 100.0 + firing * (0.1 / 360)
+    gt = np.where(beam > 1, L.GROUND, L.BUILDING).astype(np.uint8)
+    scan = Organizer().scan(xyz, times=times, intensity=beam.astype(np.float32), gt_point_labels=gt, frame_time=100.0)
+    np.testing.assert_allclose(scan.point_times(), times)
+    np.testing.assert_array_equal(scan.per_point(scan.intensity), beam)
+    np.testing.assert_array_equal(scan.reference_labels(), gt)
+    np.testing.assert_array_equal(scan.per_point(scan.gt_labels), gt)
+    assert scan.meta["frame_time"] == 100.0
+
+
+def test_organized_grid():
+    """An (H, W, 3) cloud given bottom beam first: rows reordered top first, NaN = no return."""
+    xyz, beam, firing = spinning_sweep(rings=6, cols=64, keep=1.0, seed=6)
+    grid = np.zeros((6, 64, 3), np.float32)
+    grid[beam, firing] = xyz
+    grid = grid[::-1].copy()
+    grid[2, 5] = np.nan
+    scan = Organizer().scan_organized(grid, times=np.linspace(0, 0.1, 64))
+    assert scan.shape == (6, 64) and scan.meta["organize"]["nonfinite_points"] == 1
+    assert scan.n_points == 6 * 64
+    row, col = np.divmod(scan.point_slot, 64)
+    np.testing.assert_array_equal(row, np.repeat(np.arange(6)[::-1], 64))
+    np.testing.assert_array_equal(col, np.tile(np.arange(64), 6))
+    assert np.all(np.diff(scan.sensor.altitude) < 0)
+    assert scan.per_point(np.ones(scan.shape, np.uint8) * scan.valid)[2 * 64 + 5] == 0
+
+
+# ----------------------------------------------------------------------------- properties
+
+
+@st.composite
+def sweeps(draw):
+    rings = draw(st.integers(2, 24))
+    cols = draw(st.sampled_from([120, 360, 512, 1000]))
+    keep = draw(st.floats(0.55, 1.0))
+    direction = draw(st.sampled_from([1, -1]))
+    del_ = draw(st.floats(0.8, 3.0))
+    az0 = draw(st.floats(-180, 180))
+    seed = draw(st.integers(0, 10_000))
+    return spinning_sweep(rings, cols, keep, seed, direction, -10.0, del_, az0), cols
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(sweeps(), st.sampled_from(["reversed", "column-major", "shuffled"]))
+def test_every_order_gives_the_same_organisation(sweep, reorder):
+    (xyz, beam, firing), cols = sweep
+    perm = {
+        "reversed": np.arange(len(xyz))[::-1],
+        "column-major": column_major(beam, firing),
+        "shuffled": np.random.default_rng(0).permutation(len(xyz)),
+    }[reorder]
+    a = Organizer(cols=cols).scan(xyz)
+    b = Organizer(cols=cols).scan(xyz[perm])
+    # every input point has exactly one slot inside the image
+    for s, n in ((a, len(xyz)), (b, len(xyz))):
+        assert s.point_slot.shape == (n,) and s.point_slot.min() >= 0 and s.point_slot.max() < s.ranges.size
+    # labels computed per slot come back in input order: tag every slot with its own index
+    tags = np.arange(b.ranges.size).reshape(b.shape)
+    np.testing.assert_array_equal(b.per_point(tags), b.point_slot)
+    # the same rows, and columns equal up to a shift and the direction
+    row_a, col_a = np.divmod(a.point_slot[perm], cols)
+    row_b, col_b = np.divmod(b.point_slot, cols)
+    np.testing.assert_array_equal(row_a, row_b)
+    assert any(len(np.unique((col_b - sign * col_a) % cols)) == 1 for sign in (1, -1))
+
+
+# ----------------------------------------------------------------------------- bad input, warnings
+
+
+def test_unorganisable_sweep_is_an_error():
+    """Points without beams, ring field or order (uniform directions, random order)."""
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(20000, 3))
+    xyz = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(2, 30, (20000, 1))
+    with pytest.raises(DataError, match=r"cloud\.bin: cannot organise"):
+        Organizer().scan(xyz, source="cloud.bin")
+
+
+def test_collapse_is_never_silent(caplog):
+    """Too few columns for the sweep: the shared slots are warned about and counted."""
+    xyz, *_ = spinning_sweep(rings=16, cols=720, seed=7)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.organize"):
+        scan = Organizer(cols=500).scan(xyz, source="s.bin")
+    rep = scan.meta["organize"]
+    assert rep["collisions_pct"] > 12 and len(rep["warnings"]) == 1
+    assert "s.bin" in caplog.text and "share a range-image slot" in caplog.text
+    with pytest.raises(DataError, match=r"s\.bin: cannot organise: .*share a range-image slot"):
+        Organizer(cols=60).scan(xyz, source="s.bin")
+
+
+def test_expected_beams_checked(caplog):
+    xyz, *_ = spinning_sweep(rings=16, cols=720, seed=8)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.organize"):
+        scan = Organizer(rows=64).scan(xyz, source="x.bin")
+    assert any("16 rings found, the sensor has 64" in w for w in scan.meta["organize"]["warnings"])
+    assert "16 rings found" in caplog.text
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"xyz": np.zeros((5, 2))}, "points must be an \\(N, 3\\) array"),
+        ({"xyz": np.full((5, 3), np.nan)}, "no point with a return"),
+        ({"xyz": np.ones((5, 3)), "ring": np.zeros(4)}, "ring has shape"),
+        ({"xyz": np.ones((5, 3)), "ring": np.full(5, 0.5)}, "the ring field holds non-integer"),
+    ],
+)
+def test_bad_input(kwargs, message):
+    with pytest.raises(DataError, match=r"f\.pcd: " + message):
+        Organizer().scan(source="f.pcd", **kwargs)
+
+
+def test_order_method_refuses_an_unordered_sweep():
+    xyz, *_ = spinning_sweep(rings=8, cols=360, seed=9)
+    xyz = xyz[np.random.default_rng(0).permutation(len(xyz))]
+    with pytest.raises(DataError, match="point order is not consistent"):
+        Organizer(method="order").scan(xyz, source="o.bin")
+
+
+def test_beam_offset_estimated():
+    """Beams leaving the axis 25 mm out (Ouster-like): the offset is found from the points."""
+    xyz, *_ = spinning_sweep(rings=32, cols=512, seed=10, del_=0.7)
+    rho = np.hypot(xyz[:, 0], xyz[:, 1])
+    xyz = xyz.copy()
+    xyz[:, :2] *= ((rho + 0.025) / rho)[:, None]  # the beam starts 25 mm out along its azimuth
+    assert estimate_beam_offset(xyz) == pytest.approx(0.025, abs=0.0015)
+
+
+# ----------------------------------------------------------------------------- real sweeps
+
+needs_ouster = pytest.mark.skipif(not OUSTER, reason="../shared/data/ouster/decoded not present")
+
+
+def ouster_layout(path: Path, layout: str):
+    z = np.load(path)
+    valid = z["range_mm"] > 0
+    H, W = valid.shape
+    b, m = np.meshgrid(np.arange(H), np.arange(W), indexing="ij")
+    if layout.startswith("column-major"):
+        b, m = b.T, m.T
+    if layout.endswith("reversed"):
+        b, m = b[:, ::-1], m[:, ::-1]  # azimuth running the other way round
+    b, m = b.ravel(), m.ravel()
+    keep = valid[b, m]
+    return z["xyz_lidar_m"][b[keep], m[keep]], b[keep], m[keep]
+
+
+@needs_ouster
+@pytest.mark.parametrize("layout", ["ring-major", "ring-major-reversed", "column-major", "column-major-reversed"])
+@pytest.mark.parametrize("path", [p for p in OUSTER if "frame1" not in p.name and "frame2" not in p.name], ids=str)
+def test_ouster_sweeps_in_kitti_layout(path, layout, tmp_path):
+    """Acceptance: KITTI-layout bins from real Ouster sweeps, >= 98 % of points in their true slot."""
+    xyz, beam, meas = ouster_layout(path, layout)
+    pts = np.concatenate([xyz, np.zeros((len(xyz), 1), np.float32)], axis=1).astype(np.float32)
+    (tmp_path / "velodyne").mkdir()
+    pts.tofile(tmp_path / "velodyne" / "000000.bin")
+    from data_tools.kitti import KittiSequence
+
+    scan = KittiSequence(tmp_path)[0]
+    rep = scan.meta["organize"]
+    assert rep["method"] == ("column-major" if layout.startswith("column") else "ring-major")
+    assert rep["rings"] == 128 and rep["cols"] == 1024
+    assert slot_agreement(scan, beam, meas) >= 0.98
+    assert rep["collisions_pct"] < 2.0 and rep["warnings"] == []
+
+
+def read_pcd(path: Path) -> np.ndarray:
+    """A binary PCD as a structured array (the few types the shared sweeps use)."""
+    raw = path.read_bytes()
+    head, _, body = raw.partition(b"DATA binary\n")
+    h = {ln.split()[0]: ln.split()[1:] for ln in head.decode().splitlines() if ln and not ln.startswith("#")}
+    types = {("F", "4"): "<f4", ("U", "1"): "u1", ("U", "2"): "<u2", ("U", "4"): "<u4"}
+    dt = np.dtype([(n, types[(t, s)]) for n, t, s in zip(h["FIELDS"], h["TYPE"], h["SIZE"], strict=True)])
+    return np.frombuffer(body, dt, count=int(h["POINTS"][0]))
+
+
+#: sensor: (channels, least plausible share of the channels found in one sweep)
+SENSORS = {
+    "hesai_pandar40p": 40,
+    "hesai_pandarqt64": 64,
+    "hesai_pandarxt32": 32,
+    "hesai_at128": 128,
+    "velodyne_vlp16": 16,
+}
+
+
+@pytest.mark.skipif(not MULTI.is_dir(), reason="../shared/data/multisensor not present")
+@pytest.mark.parametrize("sensor", sorted(SENSORS))
+def test_real_sweeps_organise_plausibly(sensor):
+    """Real sweeps of five sensors (points in driver order, xyz only): beams found within the
+    sensor's channel count, few slots shared between firings, never more rows than channels."""
+    a = read_pcd(MULTI / f"{sensor}.pcd")
+    xyz = np.stack([a["x"], a["y"], a["z"]], axis=1)
+    scan = Organizer().scan(xyz, source=sensor)
+    rep = scan.meta["organize"]
+    channels = SENSORS[sensor]
+    assert 0.5 * channels <= rep["rings"] <= channels
+    shared = rep["collisions_pct"] - 100 * rep["multi_returns"] / len(xyz)
+    assert shared < 15.0
+    assert scan.n_points == len(xyz)
+    if "channel" in a.dtype.names:  # the VLP-16's channel field: rows must agree with it
+        with_field = Organizer().scan(xyz, ring=a["channel"], source=sensor)
+        assert with_field.meta["organize"]["rings"] == len(np.unique(a["channel"]))
+        rows_xyz = scan.point_slot // scan.shape[1]
+        rows_field = with_field.point_slot // with_field.shape[1]
+        # the same partition into beams (row numbers may differ where a beam is empty)
+        mapping = {}
+        for r_f, r_x in zip(rows_field, rows_xyz, strict=True):
+            mapping.setdefault(r_f, {}).setdefault(r_x, 0)
+            mapping[r_f][r_x] += 1
+        agree = sum(max(v.values()) for v in mapping.values()) / len(xyz)
+        assert agree >= 0.98
