@@ -7,13 +7,12 @@ one path (:func:`prc_slam.cli.common.handles_errors`): one line ``error: <option
 
 from __future__ import annotations
 
-import os
-import sys
 from pathlib import Path
 
 import typer
 
-from prc_slam.cli import bench, classify, compare, demo, mapclass, simulate
+from prc_slam.cli import batch, bench, classify, compare, demo, mapclass, simulate
+from prc_slam.cli import filter as filter_cmd
 from prc_slam.cli.common import OneLineGroup, setup_logging
 
 app = typer.Typer(
@@ -33,33 +32,15 @@ def _options(
     setup_logging(log_file, quiet)
 
 
-for _module in (classify, compare, mapclass, simulate, bench, demo):
+for _module in (classify, compare, filter_cmd, mapclass, simulate, bench, demo, batch):
     _module.register(app)
-
-try:  # the filtered stream writer lands with the readers
-    from prc_slam.cli import filter as _filter
-
-    _filter.register(app)
-except ImportError:  # pragma: no cover
-    pass
 
 
 def main() -> None:
-    """Console entry point: the app, and an immediate exit on Ctrl-C (no interpreter tear-down
-    messages from half-loaded extensions)."""
-    try:
-        app()
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-        if code == 130:
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(130)
-        raise
-    except KeyboardInterrupt:
-        sys.stderr.write("error: interrupted\n")
-        sys.stderr.flush()
-        os._exit(130)
+    """Console entry point (see :mod:`prc_slam.launcher`)."""
+    from prc_slam.launcher import main as launch
+
+    launch()
 
 
 __all__ = ["app", "main"]

@@ -1,0 +1,213 @@
+"""Where batch and tiled work runs: a Dask cluster (issue 19, parts 2 and 3).
+
+:func:`open_client` connects to a scheduler (``--scheduler tcp://HOST:8786`` or the
+``DASK_SCHEDULER_ADDRESS`` environment variable) or starts an in-process ``LocalCluster`` of
+worker *processes* (one thread each: numba and KISS-ICP hold the GIL unevenly, so threads would
+not scale), sized to the machine's CPUs unless ``workers`` is given.
+
+:func:`classify_tiled_distributed` is the out-of-core tiled map classification of
+:func:`prc_slam.mapclass.tiles.classify_tiled` (paper 004, Sec. 5) with its pass 2 spread over
+the workers: the client spills the cloud into tile files (the serial pass 1, reused), then for
+every tile gathers the tile's points and the neighbours' points within ``margin`` exactly as the
+serial loop does and sends them to a worker, which classifies them and returns the labels of the
+tile's own points; the client writes those into ``labels_out`` (e.g. a memory-map). At most
+``window`` tiles are in flight, so client memory stays bounded by a few tiles, and workers need
+no shared file system. The labels are identical to the serial tiled run (tested).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import logging
+import os
+import tempfile
+import warnings
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+log = logging.getLogger("prc_slam")
+
+
+def default_workers() -> int:
+    """Worker processes for a local cluster: the CPUs this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def has_dashboard() -> bool:
+    """Dask's dashboard needs bokeh (not a dependency of ``dask[distributed]``)."""
+    return importlib.util.find_spec("bokeh") is not None
+
+
+@contextmanager
+def open_client(
+    scheduler: str | None = None,
+    workers: int | None = None,
+    note: Callable[[str], None] | None = None,
+    dashboard: bool | None = None,
+) -> Iterator[Any]:
+    """A ``distributed.Client``: on ``scheduler`` (or ``DASK_SCHEDULER_ADDRESS``), else on a
+    fresh in-process ``LocalCluster`` of ``workers`` single-threaded worker processes.
+
+    ``note`` receives one line naming the cluster and one with the dashboard address.
+    """
+    from distributed import Client, LocalCluster
+
+    say = note or log.info
+    if workers is not None and workers < 1:
+        raise ValueError(f"--workers: must be at least 1, got {workers}")
+    address = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
+    dashboard = has_dashboard() if dashboard is None else dashboard
+    if address:
+        if workers is not None:
+            say(f"--workers {workers} ignored: the cluster at {address} has its own workers")
+        try:
+            client = Client(address, timeout="20s")
+        except OSError as exc:
+            raise OSError(f"--scheduler: cannot reach {address}: {exc}") from None
+        cluster = None
+        say(f"dask: scheduler {address}, {len(client.scheduler_info(n_workers=-1)['workers'])} workers")
+    else:
+        n = workers or default_workers()
+        cluster = LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":8787" if dashboard else None,
+            silence_logs=logging.ERROR,
+        )
+        client = Client(cluster)
+        say(f"dask: local cluster of {n} worker process{'es' if n > 1 else ''} (1 thread each)")
+    link = client.dashboard_link if dashboard else ""
+    say(f"dask dashboard: {link}" if link else "dask dashboard: not available (install bokeh>=3.1 for it)")
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# Tiled map classification across workers
+# ---------------------------------------------------------------------------------------------
+
+
+def tile_points(files: dict[tuple[int, int], Path], key: tuple[int, int], tile: float, margin: float):
+    """The tile's own rows and the points classified with it: its own points first, then the
+    points of the neighbouring tiles within ``margin`` (the serial loop's gathering, in its order)."""
+    from prc_slam.mapclass.tiles import _ROW
+
+    own = np.fromfile(files[key], dtype=_ROW)
+    lo = np.array(key, dtype=np.float64) * tile - margin
+    hi = lo + tile + 2 * margin
+    reach = int(np.ceil(margin / tile))
+    parts = [own["xyz"]]
+    for dx in range(-reach, reach + 1):
+        for dy in range(-reach, reach + 1):
+            other = files.get((key[0] + dx, key[1] + dy))
+            if (dx or dy) and other is not None:
+                xyz = np.fromfile(other, dtype=_ROW)["xyz"]
+                inside = np.all((xyz[:, :2] >= lo) & (xyz[:, :2] < hi), axis=1)
+                parts.append(xyz[inside])
+    return own, np.concatenate(parts)
+
+
+def classify_tile(points: np.ndarray, n_own: int, config) -> tuple[np.ndarray, dict[str, float], Any]:
+    """On a worker: classify one tile with its margin; the labels of its ``n_own`` own points
+    (they come first), the stage times and the tile's result without per-point arrays."""
+    from prc_slam.mapclass import tiles
+    from prc_slam.mapclass.classify import DensityWarning, classify_map
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DensityWarning)  # summed up by the client
+        result = classify_map(points, config)
+    light = tiles._light(result, n_own) if hasattr(tiles, "_light") else None
+    return np.ascontiguousarray(result.labels[:n_own]), dict(result.seconds), light
+
+
+def classify_tiled_distributed(
+    chunks: Iterable[np.ndarray],
+    config=None,
+    tile: float = 40.0,
+    margin: float = 6.0,
+    workdir: str | Path | None = None,
+    labels_out: np.ndarray | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    details: bool = False,
+    *,
+    client,
+    window: int | None = None,
+):
+    """:func:`prc_slam.mapclass.tiles.classify_tiled` with the tiles classified on ``client``'s
+    workers; same arguments and returns (``window``: tiles in flight, default twice the workers).
+    """
+    from distributed import as_completed
+
+    from prc_slam import labels as L
+    from prc_slam.mapclass import tiles
+
+    if tile <= 0 or margin < 0:
+        raise ValueError(f"tile must be > 0 and margin >= 0, got {tile}, {margin}")
+    if window is None:
+        window = 2 * max(1, len(client.scheduler_info(n_workers=-1).get("workers", {})))
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        files, n, _ = tiles._spill(chunks, tile, Path(tmp))
+        labels = np.full(n, L.NO_RETURN, np.uint8) if labels_out is None else labels_out
+        if len(labels) != n:
+            raise ValueError(f"labels_out holds {len(labels)} entries for {n} points")
+        labels[:] = L.NO_RETURN
+        keys = sorted(files)
+        pending: dict[Any, tuple[tuple[int, int], np.ndarray]] = {}
+        lights: dict[tuple[int, int], Any] = {}
+        seconds_by_key: dict[tuple[int, int], dict[str, float]] = {}
+        running = as_completed()
+        next_key = done = 0
+
+        def submit() -> None:
+            nonlocal next_key
+            key = keys[next_key]
+            next_key += 1
+            own, points = tile_points(files, key, tile, margin)
+            data = client.scatter(points, direct=False)
+            fut = client.submit(classify_tile, data, len(own), config, pure=False, retries=2)
+            pending[fut] = (key, own["index"])
+            running.add(fut)
+
+        while next_key < len(keys) and len(pending) < window:
+            submit()
+        for fut in running:
+            key, index = pending.pop(fut)
+            own_labels, secs, light = fut.result()
+            fut.release()
+            labels[index] = own_labels
+            lights[key], seconds_by_key[key] = light, secs
+            done += 1
+            if progress is not None:
+                progress(done, len(keys))
+            if next_key < len(keys):
+                submit()
+    seconds: dict[str, float] = {}
+    for key in keys:  # summed in the serial order
+        for k, v in seconds_by_key[key].items():
+            seconds[k] = seconds.get(k, 0.0) + v
+    if not details:
+        return labels, seconds
+    results = [lights[k] for k in keys]
+    summarise = getattr(tiles, "density_summary", None)
+    density = summarise(results) if summarise and all(r is not None for r in results) else {"messages": []}
+    if density["messages"]:
+        from prc_slam.mapclass.classify import DensityWarning
+
+        warnings.warn(
+            f"{len(density['messages'])} of {len(results)} tiles: " + density["messages"][0],
+            DensityWarning,
+            stacklevel=2,
+        )
+    return labels, seconds, density
