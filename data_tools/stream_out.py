@@ -228,7 +228,7 @@ class RosCloudWriter(StreamWriter):
         cloud = scan.meta.get("ros")
         if not isinstance(cloud, CloudMessage):
             raise DataError(
-                f"{scan.source}: a {self.kind} output needs a ROS recording as input; use --out-format pcd or kitti"
+                f"{scan.source}: output format {self.kind} needs a ROS recording as input (--out-format pcd or kitti)"
             )
         keep, labels = self._check(scan, keep, labels, cloud.height * cloud.width)
         msg = self.message(cloud, keep, labels)
@@ -422,7 +422,7 @@ def open_stream_writer(
     if fmt in ("ros1", "ros2", "mcap"):
         if getattr(dataset, "format", "") != "rosbag":
             raise DataError(
-                f"{out}: a {fmt} output needs a ROS 1/2 or MCAP input (this input is "
+                f"{out}: output format {fmt} needs a ROS 1/2 or MCAP input (this input is "
                 f"{getattr(dataset, 'format', '?')}); use --out-format pcd or kitti"
             )
         storage = "mcap" if getattr(dataset, "storage", "") == "mcap" else "sqlite3"

@@ -387,7 +387,7 @@ def test_bag_output_needs_a_recording(tmp_path, sims):
         format = "sim"
         poses = None
 
-    with pytest.raises(DataError, match="needs a ROS 1/2 or MCAP input"):
+    with pytest.raises(DataError, match="output format mcap needs a ROS 1/2 or MCAP input"):
         open_stream_writer(tmp_path / "x.mcap", Seq(scans))
 
 
