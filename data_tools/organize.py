@@ -265,23 +265,36 @@ def _run_bounds(run, n_runs):
 
 
 @njit(cache=True, nogil=True)
-def _run_medians(te, ok, lo, hi):
-    """Median tangent-of-elevation of each run and its number of points."""
+def _run_medians(te, ok, lo, hi, sample=255):
+    """Median tangent-of-elevation of each run (of at most ``sample`` points spread evenly
+    over the run) and its number of points."""
     m = lo.shape[0]
     med = np.full(m, np.nan)
     cnt = np.zeros(m, np.int64)
+    buf = np.empty(sample + 1)
     for k in range(m):
         if lo[k] < 0:
             continue
-        buf = np.empty(hi[k] - lo[k])
         c = 0
         for i in range(lo[k], hi[k]):
             if ok[i]:
-                buf[c] = te[i]
                 c += 1
         cnt[k] = c
-        if c:
-            med[k] = np.median(buf[:c])
+        if c == 0:
+            continue
+        stride = max(1, (hi[k] - lo[k]) // sample)
+        b = 0
+        for i in range(lo[k], hi[k], stride):
+            if ok[i] and b < sample + 1:
+                buf[b] = te[i]
+                b += 1
+        if b == 0:
+            for i in range(lo[k], hi[k]):
+                if ok[i]:
+                    buf[0] = te[i]
+                    b = 1
+                    break
+        med[k] = np.median(buf[:b])
     return med, cnt
 
 
@@ -486,6 +499,38 @@ def _gather3(rep, src, out):
     return out
 
 
+@njit(cache=True, nogil=True)
+def _slot_times_kernel(times, rep, rows, cols):
+    """Time of every slot's representative, and the mean time of each column's points; empty
+    slots get their column's mean (columns without points are flagged in ``known``)."""
+    t = np.empty(rows * cols)
+    sums = np.zeros(cols)
+    cnt = np.zeros(cols, np.int64)
+    for k in range(rows * cols):
+        j = rep[k]
+        if j >= 0:
+            t[k] = times[j]
+            sums[k % cols] += times[j]
+            cnt[k % cols] += 1
+    col_t = np.zeros(cols)
+    known = cnt > 0
+    for c in range(cols):
+        if cnt[c] > 0:
+            col_t[c] = sums[c] / cnt[c]
+    for k in range(rows * cols):
+        if rep[k] < 0:
+            t[k] = col_t[k % cols]
+    return t, col_t, known
+
+
+@njit(cache=True, nogil=True)
+def _fill_empty_times(t, rep, col_t, rows, cols):
+    for k in range(rows * cols):
+        if rep[k] < 0:
+            t[k] = col_t[k % cols]
+    return t
+
+
 # ----------------------------------------------------------------------------- beam tables
 
 
@@ -648,6 +693,7 @@ class Organizer:
         self._order_direction: int | None = None
         self.beam_offset: float | None = None
         self.clean_rings: bool | None = None
+        self._cut: float | None = None
         self.frames = 0
         self.warnings_total = 0
 
@@ -851,18 +897,16 @@ class Organizer:
             d = np.abs(np.angle(np.exp(1j * np.diff(az[idx]))))
             d = d[(d > 1e-7) & (d < np.radians(5.0))]
             step_guess = float(np.median(d)) if len(d) > 10 else np.radians(0.1)
-        run = _ring_runs(az, ok, float(s), np.radians(15.0), 0.5 * step_guess)
+        if self._cut is None:
+            # first sweep: cut where the azimuth comes back to the ring's start, to find the
+            # sweep's cut azimuth
+            run = _ring_runs(az, ok, float(s), np.radians(15.0), 0.5 * step_guess)
+            lo, hi = _run_bounds(run, int(run.max()) + 1)
+            self._cut = self._cut_azimuth(az, lo, hi, s, step_guess)
+        # cut the rings where they pass the sweep's cut azimuth (late ring starts do not chain)
+        run = _ring_runs_cut(az, ok, float(s), self._cut, np.radians(15.0))
         lo, hi = _run_bounds(run, int(run.max()) + 1)
-        # the sweep's cut: early among the ring starts (late starts are rings whose first
-        # returns are missing); then cut again from it, which does not chain late starts
-        cnt = hi - lo
-        long = (lo >= 0) & (cnt >= 0.2 * cnt.max())
-        starts = az[lo[long]]
-        ref = float(np.angle(np.exp(1j * starts).mean()))
-        rel = s * np.angle(np.exp(1j * (starts - ref)))
-        cut = ref + s * float(np.percentile(rel, 2)) - s * 0.5 * step_guess
-        run = _ring_runs_cut(az, ok, float(s), cut, np.radians(15.0))
-        lo, hi = _run_bounds(run, int(run.max()) + 1)
+        self._cut = self._cut_azimuth(az, lo, hi, s, step_guess)  # followed from sweep to sweep
         med, cnt = _run_medians(te, ok, lo, hi)
         if self.beam_te is None:
             self.beam_te = self._beams_from_runs(med, cnt)
@@ -877,6 +921,17 @@ class Organizer:
         window = int(max(32, 0.1 * float(np.median(cnt[cnt > 0]))))
         row = _refine_cuts(te, ok, run, lo, hi, row_of_run, self.beam_te, window, self.clean_rings)
         return row, len(self.beam_te)
+
+    @staticmethod
+    def _cut_azimuth(az, lo, hi, s, step):
+        """The sweep's cut azimuth: early among the ring starts (late starts are rings whose
+        first returns are missing), half a step before it."""
+        cnt = hi - lo
+        long = (lo >= 0) & (cnt >= 0.2 * cnt.max())
+        starts = az[lo[long]]
+        ref = float(np.angle(np.exp(1j * starts).mean()))
+        rel = s * np.angle(np.exp(1j * (starts - ref)))
+        return ref + s * float(np.percentile(rel, 2)) - s * 0.5 * step
 
     def _beams_from_runs(self, med, cnt):
         """Beam table from the rings of a ring-major sweep: run medians, runs of one beam merged."""
@@ -1017,18 +1072,17 @@ class Organizer:
         return scan
 
     def _slot_times(self, times, rep, rows, cols):
-        """Per-slot times: the representative's; empty slots take their column's median time
-        (columns without any point interpolated)."""
-        has = rep >= 0
-        t = np.full(rows * cols, np.nan)
-        t[has] = times[rep[has]]
-        tg = t.reshape(rows, cols)
-        with np.errstate(all="ignore"):
-            col_t = np.nanmedian(tg, axis=0) if has.any() else np.zeros(cols)
-        known = np.isfinite(col_t)
+        """Per-slot times: the representative's; empty slots take their column's mean time
+        (columns without any point interpolated, cyclically)."""
+        t, col_t, known = _slot_times_kernel(np.ascontiguousarray(times, dtype=np.float64), rep, rows, cols)
         if not known.all():
-            col_t = np.interp(np.arange(cols), np.flatnonzero(known), col_t[known]) if known.any() else np.zeros(cols)
-        return np.where(np.isfinite(tg), tg, col_t[None, :])
+            if not known.any():
+                col_t[:] = 0.0
+            else:
+                k = np.flatnonzero(known)
+                col_t = np.interp(np.arange(cols), k, col_t[k])
+            t = _fill_empty_times(t, rep, col_t, rows, cols)
+        return t.reshape(rows, cols)
 
     def _finish(
         self, cloud, ok, rng, slot, rep, rows, cols, sensor, t, inten, name, source, frame_time,

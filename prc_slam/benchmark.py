@@ -460,12 +460,87 @@ def bench_peers(
     return out
 
 
+def bench_organize(kitti_dir: Path | None = None, repeat: int = 15) -> dict[str, Any]:
+    """The organiser (``data_tools.organize``): sweeps of points -> range image, in points per
+    second, on a 64 x 2048 synthetic sweep in three orders (ring-major, column-major, no order)
+    and on KITTI frames; and a whole KITTI frame as a reader delivers it (read the bin, organise,
+    PRC with the paper's parameters), frames 3-10 (no label files to read). Each figure is the
+    median of ``repeat`` runs on a sequence whose beam table is already estimated."""
+    from data_tools.organize import Organizer
+
+    rng = np.random.default_rng(0)
+    rows, cols = 64, 2048
+    beam, firing = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    keep = rng.random(beam.size) < 0.9
+    beam, firing = beam.ravel()[keep], firing.ravel()[keep]
+    az = (firing + 0.5) * 2 * np.pi / cols
+    el = np.radians(2.0 - 26.9 * beam / (rows - 1))
+    r = rng.uniform(3.0, 60.0, beam.size)
+    xyz = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], 1).astype(np.float32)
+    orders = {
+        "ring_major": np.arange(len(xyz)),
+        "column_major": np.lexsort((beam, firing)),
+        "unordered": rng.permutation(len(xyz)),
+    }
+    yard = yardstick_seconds(len(xyz))
+    out: dict[str, Any] = {"yardstick_sort_ms": yard * 1e3}
+    for name, order in orders.items():
+        pts = xyz[order]
+        org = Organizer()
+        org.scan(pts)  # compile, estimate the tables
+        sec = median_seconds(lambda o=org, p=pts: o.scan(p), repeat)
+        out[f"{name}_points_per_s"] = len(pts) / sec
+        out[f"{name}_ms_per_sweep"] = sec * 1e3
+    out["points_per_s"] = out["ring_major_points_per_s"]
+    out["ratio_to_yardstick"] = out["ring_major_ms_per_sweep"] / out["yardstick_sort_ms"]
+    if kitti_dir is not None and (kitti_dir / "velodyne").is_dir():
+        from data_tools.kitti import KittiSequence, read_velodyne_bin
+
+        cfg = PRCConfig.preset("urban")
+        seq = KittiSequence(kitti_dir)
+        frames = list(range(3, min(11, len(seq)))) or [0]
+        seq[frames[0]]  # compile, estimate the tables
+        pts = read_velodyne_bin(seq.files[frames[0]])
+        t0 = seq.times[frames[0]] if seq.times is not None else 0.0
+        times = seq.point_times(pts, t0)
+        org_sec = median_seconds(lambda: seq.organizer.scan(pts[:, :3], times=times, intensity=pts[:, 3]), repeat)
+        read_sec = median_seconds(lambda: read_velodyne_bin(seq.files[frames[0]]), repeat)
+        scans = [seq[i] for i in frames]
+        prc_block(scans[0].ranges, cfg, sensor=scans[0].sensor, wrap=True)
+
+        def whole(i: int) -> None:
+            s = seq[i]
+            prc_block(s.ranges, cfg, sensor=s.sensor, wrap=True)
+
+        prc_sec = float(
+            np.median(
+                [median_seconds(lambda s=s: prc_block(s.ranges, cfg, sensor=s.sensor, wrap=True), 3) for s in scans]
+            )
+        )
+        frame_sec = float(np.median([median_seconds(lambda i=i: whole(i), 3) for i in frames]))
+        rep = scans[0].meta["organize"]
+        out.update(
+            {
+                "kitti_points_per_s": len(pts) / org_sec,
+                "kitti_organize_ms": org_sec * 1e3,
+                "kitti_read_ms": read_sec * 1e3,
+                "kitti_prc_ms": prc_sec * 1e3,
+                "kitti_frame_ms": frame_sec * 1e3,
+                "kitti_method": rep["method"],
+                "kitti_rows_cols": f"{scans[0].shape[0]}x{scans[0].shape[1]}",
+                "kitti_collisions_pct": float(np.mean([s.meta["organize"]["collisions_pct"] for s in scans])),
+            }
+        )
+    return out
+
+
 def run_bench(kitti_dir: Path | None = None) -> dict[str, Any]:
     """All sections implemented so far."""
     return {
+        "organize": bench_organize(kitti_dir),
         "prc": bench_prc(kitti_dir),
         "online": bench_online(),
-        "mapclass": bench_mapclass(),
+        "mapclass": {**bench_mapclass(), **bench_mapclass_als()},
         "sim": bench_sim(),
         "viz": bench_viz(),
         "peers": bench_peers(kitti_dir),
