@@ -22,6 +22,7 @@ import numpy as np
 
 from prc_slam.prc import PRCStream, prc_block
 from prc_slam.prc.config import PRCConfig
+from prc_slam.prc.ground import GroundState
 from prc_slam.scan import Scan, ScanError
 
 log = logging.getLogger("prc_slam.pipeline")
@@ -44,6 +45,7 @@ class ClassifiedFrame:
     labels: np.ndarray | None
     seconds: float
     one_sided: np.ndarray | None = None
+    ground_error: str | None = None
 
     def point_labels(self) -> np.ndarray:
         """Labels per input point, in input order."""
@@ -61,11 +63,13 @@ class ClassifiedFrame:
 def classify_frames(scans: Iterable[Scan], config: PRCConfig) -> Iterator[ClassifiedFrame]:
     """Classify a sequence of scans with PRC, yielding each frame once all its slots are labelled.
 
-    A spinning sensor's sweep is one block. A continuous sensor's (profiler's) scan lines form
-    one stream cut into blocks of ``config.k`` lines regardless of frame boundaries, so the
-    labels do not depend on how the recording was split into frames.
+    A spinning sensor's sweep is one block; the column ground's state (its ground plane) is
+    carried from sweep to sweep. A continuous sensor's (profiler's) scan lines form one stream cut
+    into blocks of ``config.k`` lines regardless of frame boundaries, so the labels do not depend
+    on how the recording was split into frames.
     """
     stream: PRCStream | None = None
+    ground_state = GroundState()
     pending: list[tuple[Scan, int, np.ndarray, np.ndarray]] = []  # scan, first stream row, labels, one_sided
     next_row = 0
     spent = 0.0  # PRC time not yet attributed to a yielded frame
@@ -73,8 +77,9 @@ def classify_frames(scans: Iterable[Scan], config: PRCConfig) -> Iterator[Classi
         if not scan.sensor.continuous_rows:
             wrap = True if config.wrap_columns is None else config.wrap_columns
             t0 = time.perf_counter()
-            res = prc_block(scan.ranges, config, sensor=scan.sensor, wrap=wrap)
-            yield ClassifiedFrame(scan, res.labels, time.perf_counter() - t0, res.one_sided)
+            res = prc_block(scan.ranges, config, sensor=scan.sensor, wrap=wrap, ground_state=ground_state)
+            seconds = time.perf_counter() - t0
+            yield ClassifiedFrame(scan, res.labels, seconds, res.one_sided, getattr(res, "ground_error", None))
             continue
         if stream is None:
             stream = PRCStream(config, scan.sensor)
@@ -167,6 +172,7 @@ class PipelineResult:
     points: int = 0
     nonfinite_points: int = 0
     empty_frames: int = 0
+    frames_without_ground: int = 0
     prc_seconds: float = 0.0
     online_seconds: float = 0.0
     online_seconds_first: float = 0.0
@@ -186,6 +192,8 @@ class PipelineResult:
             "skipped_points": self.nonfinite_points,
             "empty_frames": self.empty_frames,
         }
+        if self.frames_without_ground:
+            out["frames_without_ground"] = self.frames_without_ground
         if self.skipped:
             out["skips"] = [{"index": s.index, "source": s.source, "reason": s.reason} for s in self.skipped]
         if self.organize:
@@ -316,6 +324,9 @@ class Pipeline:
                 if n == 0:
                     result.empty_frames += 1
                     self.warn(f"{scan.source}: empty sweep (no returns)")
+                elif frame.ground_error is not None:
+                    result.frames_without_ground += 1
+                    self.warn(f"{scan.source}: PRC found no ground model: {frame.ground_error}")
                 step = PipelineFrame(index, frame)
                 if self.online is not None:
                     step.online = self.online.process(scan)

@@ -292,7 +292,7 @@ def prc_block(
             )
         except GroundModelError as exc:
             ground_error = str(exc)
-            log.warning("PRC column ground: no ground in this sweep: %s", exc)
+            log.debug("PRC column ground: no ground in this sweep: %s", exc)
         else:
             out[ground_result.ground] = L.GROUND
 
