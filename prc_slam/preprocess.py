@@ -20,6 +20,7 @@ from prc_slam.config import Config
 from prc_slam.filtering import filter_points
 from prc_slam.prc import prc_block
 from prc_slam.prc.config import PRCConfig
+from prc_slam.prc.ground import GroundState
 from prc_slam.scan import Scan
 
 
@@ -82,6 +83,7 @@ class Preprocessor:
         self.config = config
         self.rows, self.cols = rows, cols
         self._organizer: Any = None
+        self._ground = GroundState()  # the column ground's plane, carried from sweep to sweep
         self.frames = 0
 
     def organize(self, points: np.ndarray, timestamps: np.ndarray | None = None, **fields: Any) -> Scan:
@@ -102,7 +104,7 @@ class Preprocessor:
         classified on its own, without the stream's block boundary)."""
         cfg = self.config.prc
         wrap = (not scan.sensor.continuous_rows) if cfg.wrap_columns is None else cfg.wrap_columns
-        res = prc_block(scan.ranges, cfg, sensor=scan.sensor, wrap=wrap)
+        res = prc_block(scan.ranges, cfg, sensor=scan.sensor, wrap=wrap, ground_state=self._ground)
         return res.labels, res.one_sided
 
     def __call__(self, frame: np.ndarray | Scan, timestamps: np.ndarray | None = None, **fields: Any) -> Preprocessed:
