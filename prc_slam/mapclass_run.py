@@ -13,10 +13,11 @@ import numpy as np
 from prc_slam import labels as L
 from prc_slam.evaluation import ConfusionAccumulator, objects_found
 from prc_slam.mapclass import MapClassConfig, classify_map
-from prc_slam.mapclass.tiles import classify_tiled
+from prc_slam.mapclass.tiles import classify_tiled, density_summary
 
-#: paper 004's classes, scored point by point
+#: paper 004's classes, scored point by point (forest mode: stems are trunk)
 MAP_CLASSES = [L.GROUND, L.BUILDING, L.VEHICLE, L.POLE, L.VEGETATION]
+FOREST_CLASSES = [L.GROUND, L.BUILDING, L.VEHICLE, L.TRUNK, L.VEGETATION]
 #: reference codes folded into paper 004's classes before scoring (curbs are ground; the paper
 #: has no stem class: trunks belong to the vegetation)
 MAP_REFERENCE = {L.CURB: L.GROUND, L.TRUNK: L.VEGETATION}
@@ -26,20 +27,32 @@ OBJECT_MIN_POINTS, OBJECT_SHARE = 100, 0.5
 UNTILED_MAX_POINTS = 12_000_000
 
 
-def fold_reference(reference: np.ndarray) -> np.ndarray:
+def fold_reference(reference: np.ndarray, mode: str = "urban") -> np.ndarray:
+    """Reference codes folded into the classes map classification gives (forest mode keeps
+    trunks)."""
     out = np.asarray(reference, dtype=np.uint8).copy()
     for src, dst in MAP_REFERENCE.items():
-        out[out == src] = dst
+        if not (mode == "forest" and src == L.TRUNK):
+            out[out == src] = dst
     return out
 
 
-def score_map(labels: np.ndarray, reference: np.ndarray, instance: np.ndarray | None = None) -> dict[str, Any]:
-    """Per-class precision / recall / F1 for paper 004's classes, the confusion matrix, and
-    object counts (found / present) for vehicles and poles when instances are known."""
-    ref = fold_reference(reference)
+def score_map(
+    labels: np.ndarray, reference: np.ndarray, instance: np.ndarray | None = None, mode: str = "urban"
+) -> dict[str, Any]:
+    """Per-class precision / recall / F1 for paper 004's classes (forest mode: with trunk), the
+    confusion matrix, object counts (found / present) for vehicles and poles when instances are
+    known, and ``noise_share``: points labelled noise among the reference's non-noise points."""
+    labels = np.asarray(labels)
+    if len(labels) != len(reference):
+        raise ValueError(f"{len(labels)} labels for {len(reference)} reference codes")
+    ref = fold_reference(reference, mode)
     confusion = ConfusionAccumulator()
     confusion.add(ref, labels)
-    out: dict[str, Any] = {"per_class": confusion.per_class(MAP_CLASSES), "confusion": confusion.to_json()}
+    classes = FOREST_CLASSES if mode == "forest" else MAP_CLASSES
+    out: dict[str, Any] = {"per_class": confusion.per_class(classes), "confusion": confusion.to_json()}
+    real = (ref != L.NOISE) & (ref != L.NO_RETURN)
+    out["noise_share"] = float(np.mean(labels[real] == L.NOISE)) if real.any() else None
     if instance is not None:
         out["objects"] = {}
         for code in (L.VEHICLE, L.POLE):
@@ -78,12 +91,15 @@ def run_mapclass(
         tile = 40.0 if n_points > UNTILED_MAX_POINTS else 0.0
     t0 = time.perf_counter()
     if tile > 0:
-        labels, seconds = classify_tiled(chunks(), config, tile, margin, labels_out=labels_out, progress=progress)
+        labels, seconds, density = classify_tiled(
+            chunks(), config, tile, margin, labels_out=labels_out, progress=progress, details=True
+        )
     else:
         parts = list(chunks())
         points = np.concatenate(parts) if parts else np.zeros((0, 3))
         result = classify_map(points, config)
         labels, seconds = result.labels, result.seconds
+        density = density_summary([result])
         if labels_out is not None:
             labels_out[:] = labels
             labels = labels_out
@@ -99,6 +115,8 @@ def run_mapclass(
         "counts": {L.CODE_TO_NAME.get(int(c), f"code_{c}"): int(counts[c]) for c in np.flatnonzero(counts)},
         "tile": tile,
         "margin": margin if tile > 0 else None,
+        "density": density,
+        "messages": density.pop("messages", []),
     }
     return labels, metrics
 

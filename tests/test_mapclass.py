@@ -286,7 +286,7 @@ def test_classify_map_constructed_street(street):
 def test_bad_input_empty_single_nan_and_sparse():
     assert len(classify_map(np.zeros((0, 3))).labels) == 0
     one = classify_map(np.array([[1.0, 2.0, 3.0]]))
-    assert one.labels.tolist() == [L.NOISE]  # one point in a cubic metre is below 100 points/m^3
+    assert one.labels.tolist() == [L.NOISE]  # a lone point is under the relative threshold's floor (2 points)
     pts = plane(0, 5, 0, 5)
     pts[[3, 10]] = np.nan
     pts[20] = [np.inf, 0, 0]
@@ -319,8 +319,8 @@ def test_one_label_per_input_point(n, spread, nan_share, seed):
 
 def test_density_threshold_limits():
     pts = plane(0, 5, 0, 5)
-    assert (classify_map(pts, MapClassConfig(min_density=0.0)).labels != L.NOISE).all()
-    assert (classify_map(pts, MapClassConfig(min_density=1e12)).labels == L.NOISE).all()
+    assert (classify_map(pts, MapClassConfig(density_relative=False, min_density=0.0)).labels != L.NOISE).all()
+    assert (classify_map(pts, MapClassConfig(density_relative=False, min_density=1e12)).labels == L.NOISE).all()
 
 
 def test_tiled_equals_untiled_inside_one_tile_and_keeps_every_point(street, tmp_path):

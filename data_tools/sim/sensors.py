@@ -120,7 +120,11 @@ def make_sensor(name: str, lines_per_frame: int | None = None) -> SimSensor:
         model = ProfilerSensor.create(rows, 4270, angle0=0.0, line_rate=rate, line_spacing=1.3 / rate, mount=mount)
         dead = (np.radians(270 - 27.5), np.radians(270 + 27.5))  # 55 deg towards the ground
         return SimSensor(name, model, rows / rate, 2.0, 0.01, 0.5, 80.0, 0.3, dead_angle=dead, platform="walking")
+    if name in CLOUD_SENSORS:
+        raise ValueError(f"{name} gives a point cloud, not a range-image stream: use data_tools.sim.airborne")
     raise ValueError(f"unknown sensor {name!r}; choose from hdl64, vlp16, profiler-urban, profiler-backpack")
 
 
 SENSORS = ("hdl64", "vlp16", "profiler-urban", "profiler-backpack")
+#: airborne and terrestrial scanners: unorganised clouds with per-point truth (data_tools.sim.airborne)
+CLOUD_SENSORS = ("als", "tls")

@@ -140,3 +140,32 @@ def walking_trajectory(
     roll = np.radians(2.0) * np.sin(2 * np.pi * 1.0 * t + phase)
     pos = np.column_stack([xy, zc + mount_height + bounce])
     return Trajectory(t, pos, np.column_stack([yaw, pitch, roll]), "walking")
+
+
+def flight_line(
+    start: tuple[float, float],
+    heading: float,
+    length: float,
+    altitude: float,
+    speed: float,
+    *,
+    attitude_sigma_deg: float = 0.02,
+    seed: int = 0,
+) -> Trajectory:
+    """An aircraft on a straight survey line from ``start`` (x, y) along ``heading`` (rad) at
+    constant ``altitude`` (m, world z) and ``speed``; roll and pitch oscillate slowly (0.5 deg,
+    turbulence) and the yaw carries a small crab angle, as an inertial system measures them;
+    ``attitude_sigma_deg`` adds the residual (unmeasured) attitude noise."""
+    rng = np.random.default_rng(seed + 303)
+    duration = length / speed
+    n = int(np.ceil(duration * RATE)) + 2
+    t = np.arange(n) / RATE
+    s = speed * t
+    pos = np.column_stack([start[0] + s * np.cos(heading), start[1] + s * np.sin(heading), np.full(n, altitude)])
+    phase = rng.uniform(0, 2 * np.pi, 3)
+    crab = np.radians(rng.uniform(-2, 2))
+    sigma = np.radians(attitude_sigma_deg)
+    yaw = heading + crab + np.radians(0.3) * np.sin(2 * np.pi * 0.05 * t + phase[0]) + rng.normal(0, sigma, n)
+    pitch = np.radians(0.5) * np.sin(2 * np.pi * 0.1 * t + phase[1]) + rng.normal(0, sigma, n)
+    roll = np.radians(0.5) * np.sin(2 * np.pi * 0.07 * t + phase[2]) + rng.normal(0, sigma, n)
+    return Trajectory(t, pos, np.column_stack([yaw, pitch, roll]), "aircraft")

@@ -24,6 +24,8 @@ class SensorKind(str, Enum):
     vlp16 = "vlp16"
     profiler_urban = "profiler-urban"
     profiler_backpack = "profiler-backpack"
+    als = "als"
+    tls = "tls"
 
 
 @handles_errors
@@ -37,8 +39,17 @@ def simulate(
     wind: float = typer.Option(0.0, min=0.0, help="foliage sway amplitude (m)"),
     speed: float | None = typer.Option(None, min=0.0, help="platform speed (m/s); default 8.33 vehicle, 1.3 walking"),
     kitti: Path | None = typer.Option(None, help="also export KITTI/SemanticKITTI here (spinning sensors)"),
+    density: float | None = typer.Option(None, min=0.1, help="als: single-pass pulse density (points/m^2, 8)"),
 ) -> None:
-    """Simulate a drive or walk with per-slot ground truth (Open3D ray casting)."""
+    """Simulate a drive or walk with per-slot ground truth (Open3D ray casting); ``als`` and
+    ``tls`` write one LAS/LAZ cloud (true class in ``classification``) to OUT (a .laz file or
+    a directory)."""
+    if sensor.value in ("als", "tls"):
+        from data_tools.sim.airborne import simulate_cloud
+
+        cloud, path = simulate_cloud(sensor.value, scene.value, seed, density, out)
+        console.print(f"wrote {len(cloud):,} points ({sensor.value} over {scene.value}) to {path}", highlight=False)
+        return
     from data_tools.sim.dataset import SimSequence, export_kitti, write_sequence
     from data_tools.sim.simulator import NoiseConfig, SimConfig, Simulator
     from prc_slam.jobs.progress import progress

@@ -10,6 +10,7 @@ outliers are ``noise``, points left at the end ``unclassified``, non-finite inpu
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -18,12 +19,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam import labels as L
 from prc_slam.mapclass import metrics as M
+from prc_slam.mapclass.density import DensityScale, below_message, outlier_threshold, size_for, surface_density
 from prc_slam.mapclass.ground import detect_ground
 from prc_slam.mapclass.objects import (
     detect_buildings,
     detect_posts,
     detect_vegetation,
     detect_vehicles,
+    height_above_ground,
     segment_voxels,
     under_crown,
 )
@@ -40,6 +43,9 @@ class GroundParams(_Params):
     max_step: float = Field(0.1, ge=0, description="rise allowed on top of the slope (m)")
     max_above_local: float = Field(0.5, ge=0, description="largest height above the local minimum (m)")
     tolerance: float = Field(0.2, ge=0, description="points up to this far above a ground cell's minimum (m)")
+    points_per_cell: float = Field(
+        4.0, gt=0, description="relative density: the cell grows until a surface of the cloud's density fills it so"
+    )
 
 
 class BuildingParams(_Params):
@@ -51,6 +57,12 @@ class BuildingParams(_Params):
     near: float = Field(3.0, ge=0, description="large segments' points this close join (m)")
     close: float = Field(1.5, ge=0, description="segments with two thirds of their points this close join (m)")
     spare_objects: bool = Field(True, description="the 1.5 m pass skips segments of foliage or posts; False = paper")
+    roof_height: float = Field(
+        2.5, ge=0, description="also seed with large level non-foliage segments this high above ground (m); 0 = paper"
+    )
+    under_roof: float = Field(
+        0.5, ge=0, description="points within a cell of this side (m; >= point spacing) under roofs join; 0 = paper"
+    )
 
 
 class VehicleParams(_Params):
@@ -84,8 +96,20 @@ class VegetationParams(_Params):
 class MapClassConfig(_Params):
     """Paper 004's parameters (Sec. 3, 4) and the formulation choices; see README for figures."""
 
-    density_voxel: float = Field(0.33, gt=0, description="Sec. 3.1 voxel side (m)")
-    min_density: float = Field(100.0, ge=0, description="points/m^3 below which a point is an outlier")
+    mode: Literal["urban", "forest"] = Field(
+        "urban", description="forest: slim pillars are stems (trunk), none are lamp posts or signs"
+    )
+    density_voxel: float = Field(0.33, gt=0, description="Sec. 3.1 voxel side (m); the least with density_relative")
+    min_density: float = Field(100.0, ge=0, description="paper: points/m^3 below which a point is an outlier")
+    density_relative: bool = Field(
+        True, description="sizes and the outlier threshold from the cloud's own density (False = paper's fixed values)"
+    )
+    density_points: float = Field(50.0, gt=0, description="relative: surface points in the 3x3x3 density voxels")
+    normal_points: float = Field(27.0, gt=0, description="relative: surface points in the 3x3x3 normal voxels")
+    density_percentile: float = Field(5.0, gt=0, lt=100, description="relative: threshold from this percentile ...")
+    density_fraction: float = Field(0.25, gt=0, le=1, description="... times this share of it")
+    density_min_points: float = Field(2.0, ge=0, description="relative: at least this many points in 3x3x3 voxels")
+    density_warn_share: float = Field(0.1, ge=0, le=1, description="message when more of the cloud is under it")
     normals: Literal["voxels", "points"] = "voxels"
     normal_voxel: float = Field(0.2, gt=0, description="voxel side of the 'voxels' normals (m)")
     knn: int = Field(16, ge=3, description="neighbours of the 'points' normals")
@@ -109,7 +133,8 @@ def paper_config() -> MapClassConfig:
     normals and 'large' measured in occupied voxels stay; ``normals="points"`` selects the
     per-point formulation)."""
     return MapClassConfig(
-        building=BuildingParams(min_height=0.0, min_reach=0.0, spare_objects=False),
+        density_relative=False,
+        building=BuildingParams(min_height=0.0, min_reach=0.0, spare_objects=False, roof_height=0.0, under_roof=0.0),
         vehicle=VehicleParams(max_verticality=1.0, group_voxel=0.0, skip_foliage=False),
         vegetation=VegetationParams(foliage_only=False),
         post=PostParams(skip_stems=False),
@@ -118,7 +143,9 @@ def paper_config() -> MapClassConfig:
 
 @dataclass
 class MapResult:
-    """Labels and metrics per input point, stage times (s) and the count of non-finite points."""
+    """Labels and metrics per input point, stage times (s), the count of non-finite points, the
+    sizes and threshold used (``scale``), the share of points under the density threshold and
+    the messages about the input (also issued as :class:`DensityWarning`)."""
 
     labels: np.ndarray
     segment: np.ndarray
@@ -126,6 +153,13 @@ class MapResult:
     verticality: np.ndarray
     seconds: dict[str, float] = field(default_factory=dict)
     nonfinite: int = 0
+    scale: DensityScale | None = None
+    below_share: float = 0.0
+    messages: list[str] = field(default_factory=list)
+
+
+class DensityWarning(UserWarning):
+    """More of the cloud than ``density_warn_share`` falls under the Sec. 3.1 threshold."""
 
 
 class _Clock:
@@ -161,25 +195,52 @@ def classify_map(points: np.ndarray, config: MapClassConfig | None = None) -> Ma
     n_bad = int(len(pts) - finite.sum())
     if n_bad:
         pts = np.compress(finite, pts, axis=0)
-    lab, seg, density, vert = _classify_finite(pts, cfg, clock)
+    scale = density_scale(pts, cfg)
+    lab, seg, density, vert = _classify_finite(pts, cfg, clock, scale)
+    below = float(np.mean(density < scale.threshold)) if len(density) else 0.0
+    messages = []
+    if below > cfg.density_warn_share:
+        median = float(np.median(density))
+        messages.append(below_message(below, scale.threshold, median, scale.relative, cfg.min_density))
+        warnings.warn(messages[-1], DensityWarning, stacklevel=2)
     if not n_bad:
-        return MapResult(lab, seg, density, vert, clock.seconds, 0)
+        return MapResult(lab, seg, density, vert, clock.seconds, 0, scale, below, messages)
     out = MapResult(
         np.full(len(finite), L.NO_RETURN, np.uint8), np.full(len(finite), -1, np.int64),
-        np.zeros(len(finite)), np.zeros(len(finite)), clock.seconds, n_bad,
+        np.zeros(len(finite)), np.zeros(len(finite)), clock.seconds, n_bad, scale, below, messages,
     )  # fmt: skip
     out.labels[finite], out.segment[finite], out.density[finite], out.verticality[finite] = lab, seg, density, vert
     return out
 
 
-def _classify_finite(pts: np.ndarray, cfg: MapClassConfig, clock: _Clock) -> tuple[np.ndarray, ...]:
+def density_scale(points: np.ndarray, cfg: MapClassConfig) -> DensityScale:
+    """The voxel sizes of this cloud (see :mod:`prc_slam.mapclass.density`); the threshold is
+    filled in by the density step."""
+    if not cfg.density_relative:
+        return DensityScale(0.0, cfg.density_voxel, cfg.normal_voxel, cfg.ground.cell, cfg.min_density, False)
+    rho = surface_density(points)
+    return DensityScale(
+        rho,
+        size_for(rho, cfg.density_points, cfg.density_voxel),
+        size_for(rho, cfg.normal_points, cfg.normal_voxel),
+        max(cfg.ground.cell, float(np.sqrt(cfg.ground.points_per_cell / rho)) if rho > 0 else cfg.ground.cell),
+    )
+
+
+def _classify_finite(
+    pts: np.ndarray, cfg: MapClassConfig, clock: _Clock, scale: DensityScale
+) -> tuple[np.ndarray, ...]:
     n = len(pts)
     labels = np.full(n, L.UNCLASSIFIED, dtype=np.uint8)
     segment = np.full(n, -1, dtype=np.int64)
     vert = np.zeros(n)
-    # Sec. 3.1 / 4: outliers by local density
-    density, dgrid = M.local_density(pts, cfg.density_voxel)
-    inlier = density >= cfg.min_density
+    # Sec. 3.1 / 4: outliers by local density (threshold relative to the cloud unless paper)
+    density, dgrid = M.local_density(pts, scale.density_voxel)
+    if scale.relative:
+        scale.threshold = outlier_threshold(
+            density, scale.density_voxel, cfg.density_percentile, cfg.density_fraction, cfg.density_min_points
+        )
+    inlier = density >= scale.threshold
     labels[~inlier] = L.NOISE
     idx = np.flatnonzero(inlier)
     p = np.take(pts, idx, axis=0)  # np.take: ~5x faster than fancy indexing of rows
@@ -188,7 +249,7 @@ def _classify_finite(pts: np.ndarray, cfg: MapClassConfig, clock: _Clock) -> tup
         return labels, segment, density, vert
     # Sec. 3.2 / 5: normals and segmentation (and each segment's size in normal voxels)
     if cfg.normals == "voxels":
-        grid, normals_v, curv_v = M.voxel_normals(p, cfg.normal_voxel)
+        grid, normals_v, curv_v = M.voxel_normals(p, scale.normal_voxel)
         normals = np.take(normals_v, grid.voxel, axis=0)
         clock.lap("normals")
         seg_v = M.voxel_segments(grid, normals_v, curv_v, cfg.theta_deg, cfg.max_curvature)
@@ -198,7 +259,7 @@ def _classify_finite(pts: np.ndarray, cfg: MapClassConfig, clock: _Clock) -> tup
         normals, curv, nb = M.knn_normals(p, cfg.knn, cfg.knn_radius)
         clock.lap("normals")
         seg, ns = M.region_growing(normals, curv, nb, np.cos(np.radians(cfg.theta_deg)), cfg.max_curvature)
-        seg_size = segment_voxels(p, seg, ns, cfg.normal_voxel)[seg]
+        seg_size = segment_voxels(p, seg, ns, scale.normal_voxel)[seg]
     segment[idx] = seg
     clock.lap("segmentation")
     # Sec. 3.4 verticality on the density voxels (inliers only)
@@ -207,7 +268,9 @@ def _classify_finite(pts: np.ndarray, cfg: MapClassConfig, clock: _Clock) -> tup
     clock.lap("verticality")
     # Sec. 4.1 ground
     g = cfg.ground
-    ground = detect_ground(p, g.cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance)
+    ground = detect_ground(
+        p, scale.ground_cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance
+    )
     labels[idx[ground]] = L.GROUND
     ground_pts = np.compress(ground, p, axis=0)
     keep = np.flatnonzero(~ground)
@@ -217,12 +280,16 @@ def _classify_finite(pts: np.ndarray, cfg: MapClassConfig, clock: _Clock) -> tup
     # foliage: where most points lie in segments of at most two normal voxels (see
     # MapClassConfig.foliage_share); posts: the Sec. 4.4 test on everything left
     e, q = cfg.vegetation, cfg.post
-    foliage = M.fragmentation(p, seg_size[keep] <= 2, cfg.foliage_voxel) >= cfg.foliage_share
+    coarse = scale.normal_voxel / cfg.normal_voxel  # > 1 on clouds sparser than the paper's
+    foliage = M.fragmentation(p, seg_size[keep] <= 2, cfg.foliage_voxel * coarse) >= cfg.foliage_share
     post = detect_posts(p, seg, q.voxel, q.min_voxel_points, q.max_extent, q.min_height, cfg.small_segment_points)
     clock.lap("foliage_posts")
     # Sec. 4.2-4.5, each on what the previous steps left
     b, c = cfg.building, cfg.vehicle
     pt = {"p": p, "seg": seg, "vert": v, "foliage": foliage, "post": post}
+    if b.roof_height > 0:  # roof seeds: high above the ground and not foliage
+        hag = height_above_ground(p, ground_pts, cell=max(1.0, 2 * scale.ground_cell), radius=8)
+        pt["roof"] = (hag >= b.roof_height) & ~foliage & ~post
 
     def posts_not_stems(t: dict[str, np.ndarray]) -> np.ndarray:
         """Sec. 4.4 posts; with ``skip_stems`` those under foliage are stems (next step)."""
@@ -232,11 +299,22 @@ def _classify_finite(pts: np.ndarray, cfg: MapClassConfig, clock: _Clock) -> tup
         t["stem"] = pillar & under_crown(t["p"], t["foliage"]) if q.skip_stems else np.zeros(len(pillar), bool)
         return pillar & ~t["stem"]
 
-    steps = [
-        ("buildings", L.BUILDING, lambda t: detect_buildings(
+    def buildings(t: dict[str, np.ndarray]) -> np.ndarray:
+        """Sec. 4.2, with the roof seeds and the points under them (walls an airborne scanner
+        sees at a glance, in pieces too small for normals) when configured."""
+        roof = np.zeros(len(t["p"]), bool)
+        hit = detect_buildings(
             t["p"], t["seg"], t["vert"], b.min_segment_points, b.min_verticality, b.min_height, b.near, b.close,
             spare=t["foliage"] | t["post"] if b.spare_objects else None,
-            min_segment_voxels=b.min_segment_voxels, min_reach=b.min_reach)),
+            min_segment_voxels=b.min_segment_voxels, min_reach=b.min_reach, roof=t.get("roof"),
+            seeds_out=roof)  # fmt: skip
+        if b.under_roof > 0 and roof.any():
+            cell = max(b.under_roof, 1.0 / np.sqrt(scale.rho)) if scale.rho > 0 else b.under_roof
+            hit |= under_crown(t["p"], roof, cell=cell, reach=1, above=0.5) & ~t["post"]
+        return hit
+
+    steps = [
+        ("buildings", L.BUILDING, buildings),
         ("vehicles", L.VEHICLE, lambda t: detect_vehicles(
             t["p"], t["seg"], ground_pts, c.min_points, (c.min_length, c.max_length), c.max_width,
             (c.min_height, c.max_height), c.max_ground_gap, cfg.small_segment_points, c.group_voxel,
@@ -248,6 +326,8 @@ def _classify_finite(pts: np.ndarray, cfg: MapClassConfig, clock: _Clock) -> tup
             t["p"], t["seg"], scene, e.voxel, e.factor, e.min_similar)
             & (t["foliage"] if e.foliage_only else True)),
     ]  # fmt: skip
+    if cfg.mode == "forest":  # every slim pillar is a stem, taken before the facade test sees it
+        steps = [("stems", L.TRUNK, lambda t: t["post"])] + [s for s in steps if s[0] not in ("posts", "stems")]
     for name, code, step in steps:
         if len(idx):
             hit = step(pt)

@@ -85,6 +85,9 @@ def detect_buildings(
     spare: np.ndarray | None = None,
     min_segment_voxels: int = 50,
     min_reach: float = 0.0,
+    roof: np.ndarray | None = None,
+    max_roof_verticality: float = 0.4,
+    seeds_out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Sec. 4.2, in the paper's four passes (Fig. 3): large segments with mean verticality
     ≥ ``min_verticality`` (blue); points of large segments within ``near`` of them (green);
@@ -112,6 +115,12 @@ def detect_buildings(
     reach = np.hypot(hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1])
     tall_or_long = (hi[:, 2] - lo[:, 2] >= min_height) | (reach >= min_reach)
     core = large & (vert >= min_verticality) & tall_or_long
+    if roof is not None:
+        roof_share = np.bincount(seg, weights=roof, minlength=ns) / np.maximum(size, 1)
+        roof_core = large & (roof_share >= 0.5) & (vert <= max_roof_verticality)
+        core |= roof_core
+        if seeds_out is not None:
+            seeds_out[:] = roof_core[seg]
     building = core[seg]
     # green: points of large segments near the building voxels
     cand = large[seg] & ~building
@@ -365,9 +374,12 @@ def detect_posts(
     return post | adjacent_small_segments(points, segment, post, small_segment_points)
 
 
-def under_crown(points: np.ndarray, crown: np.ndarray, cell: float = 1.0, reach: int = 1) -> np.ndarray:
+def under_crown(
+    points: np.ndarray, crown: np.ndarray, cell: float = 1.0, reach: int = 1, above: float = 0.0
+) -> np.ndarray:
     """Points whose x-y cell (or a neighbour within ``reach`` cells) holds ``crown`` points
-    higher than the point: a stem under its crown rather than a lamp post or a sign."""
+    more than ``above`` (m) higher than the point: a stem under its crown rather than a lamp
+    post or a sign; a wall under its roof."""
     if len(points) == 0 or not crown.any():
         return np.zeros(len(points), dtype=bool)
     flat = np.column_stack([points[:, :2], np.zeros(len(points))])
@@ -375,7 +387,7 @@ def under_crown(points: np.ndarray, crown: np.ndarray, cell: float = 1.0, reach:
     top = np.full(grid.n_voxels, -np.inf)
     np.maximum.at(top, grid.voxel[crown], points[crown, 2])
     best = _planar_max(grid.table, grid.coords, top, reach)
-    return best[grid.voxel] > points[:, 2]
+    return best[grid.voxel] > points[:, 2] + above
 
 
 @njit(cache=True, nogil=True)

@@ -10,13 +10,15 @@ own points. Memory is bounded by the densest tile and its margin, not by the map
 from __future__ import annotations
 
 import tempfile
+import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from prc_slam import labels as L
-from prc_slam.mapclass.classify import MapClassConfig, classify_map
+from prc_slam.mapclass.classify import DensityWarning, MapClassConfig, MapResult, classify_map
 
 _ROW = np.dtype([("xyz", "<f8", 3), ("index", "<i8")])
 
@@ -59,7 +61,8 @@ def classify_tiled(
     workdir: str | Path | None = None,
     labels_out: np.ndarray | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> tuple[np.ndarray, dict[str, float]]:
+    details: bool = False,
+):
     """Classify a cloud given as chunks of points, tile by tile.
 
     Parameters
@@ -86,6 +89,9 @@ def classify_tiled(
         One code per input point, in input order (``no_return`` for non-finite points).
     seconds : dict
         Summed stage times over the tiles.
+    density : dict
+        Only with ``details``: :func:`density_summary` over the tiles (each tile takes its own
+        relative threshold and sizes); one :class:`DensityWarning` sums up the tiles' messages.
     """
     if tile <= 0 or margin < 0:
         raise ValueError(f"tile must be > 0 and margin >= 0, got {tile}, {margin}")
@@ -97,6 +103,7 @@ def classify_tiled(
         labels[:] = L.NO_RETURN
         seconds: dict[str, float] = {}
         reach = int(np.ceil(margin / tile))
+        results: list[MapResult] = []
         for done, (key, path) in enumerate(sorted(files.items()), start=1):
             own = np.fromfile(path, dtype=_ROW)
             lo = np.array(key, dtype=np.float64) * tile - margin
@@ -109,13 +116,48 @@ def classify_tiled(
                         xyz = np.fromfile(other, dtype=_ROW)["xyz"]
                         inside = np.all((xyz[:, :2] >= lo) & (xyz[:, :2] < hi), axis=1)
                         parts.append(xyz[inside])
-            result = classify_map(np.concatenate(parts), config)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DensityWarning)  # summed up below
+                result = classify_map(np.concatenate(parts), config)
             labels[own["index"]] = result.labels[: len(own)]
+            results.append(_light(result, len(own)))
             for k, v in result.seconds.items():
                 seconds[k] = seconds.get(k, 0.0) + v
             if progress is not None:
                 progress(done, len(files))
-    return labels, seconds
+    density = density_summary(results)
+    if density["messages"]:
+        warnings.warn(
+            f"{len(density['messages'])} of {len(results)} tiles: " + density["messages"][0],
+            DensityWarning,
+            stacklevel=2,
+        )
+    return (labels, seconds, density) if details else (labels, seconds)
+
+
+def _light(result: MapResult, n_own: int) -> MapResult:
+    """A tile's result without its per-point arrays (kept for the summary); ``below_share`` is
+    weighted by the tile's own points."""
+    return MapResult(
+        np.zeros(0, np.uint8), np.zeros(0, np.int64), np.zeros(n_own), np.zeros(0), {}, result.nonfinite,
+        result.scale, result.below_share, result.messages,
+    )  # fmt: skip
+
+
+def density_summary(results: list[MapResult]) -> dict[str, Any]:
+    """Surface density, sizes and thresholds used (min / median / max over tiles), the share
+    of points under the threshold, and the messages."""
+    scales = [r.scale for r in results if r.scale is not None]
+    weights = np.array([len(r.density) for r in results], dtype=np.float64)
+    out: dict[str, Any] = {"relative": bool(scales[0].relative) if scales else None}
+    for key in ("rho", "density_voxel", "normal_voxel", "ground_cell", "threshold"):
+        vals = np.array([getattr(s, key) for s in scales], dtype=np.float64)
+        if len(vals):
+            out[key] = {"min": float(vals.min()), "median": float(np.median(vals)), "max": float(vals.max())}
+    shares = np.array([r.below_share for r in results])
+    out["below_threshold_share"] = float((shares * weights).sum() / weights.sum()) if weights.sum() else 0.0
+    out["messages"] = [m for r in results for m in r.messages]
+    return out
 
 
 def array_chunks(points: np.ndarray, size: int = 1_000_000) -> Iterable[np.ndarray]:
