@@ -201,7 +201,7 @@ def test_worker_killed_mid_task_every_result_once(client, sims, tmp_path):
     markers = tmp_path / "markers"
     markers.mkdir()
     tasks = [
-        Task(name=f"{p.name}_{i}", input=str(p), job={"kind": "detect", "max_frames": 1}) for i, p in enumerate(sims)
+        Task(name=f"{p.name}_{i}", input=str(p), job={"kind": "classify", "max_frames": 1}) for i, p in enumerate(sims)
     ]
     out = tmp_path / "out"
     summary = run_batch(tasks, out, client, hook=partial(kill_once, str(markers), tasks[0].name))
