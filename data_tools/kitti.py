@@ -119,9 +119,10 @@ class KittiSequence(SequenceBase):
     The bins may come from any spinning sensor: the organiser detects the point order
     (ring-major as the HDL-64E's KITTI bins, column-major, either azimuth direction, or none)
     and estimates beams and columns on the first frame unless ``rows``/``cols``/``altitude``
-    are given. Per-point times follow the KITTI convention: the sweep starts and ends at
-    azimuth 0 and the sensor turns clockwise (against increasing azimuth), ``SWEEP_PERIOD``
-    long; ``clockwise=False`` for sensors that turn the other way.
+    are given. Times follow the KITTI convention: the sweep starts and ends at azimuth 0 and
+    the sensor turns clockwise (against increasing azimuth), ``SWEEP_PERIOD`` long; columns
+    run clockwise from azimuth 0 and carry their time (``clockwise=False`` for sensors that
+    turn the other way).
     """
 
     format = "kitti"
@@ -149,7 +150,7 @@ class KittiSequence(SequenceBase):
         self.sweep_period = float(sweep_period)
         self.organizer = Organizer(
             rows=rows, cols=cols, altitude=altitude, method=method, source_name=str(self.root),
-            sweep_period=self.sweep_period,
+            sweep_period=self.sweep_period, spin="cw" if clockwise else "ccw", start_azimuth=0.0,
         )  # fmt: skip
         self.times = read_times(self.root / "times.txt") if (self.root / "times.txt").is_file() else None
         if self.times is not None and len(self.times) < len(self.files):
@@ -163,8 +164,9 @@ class KittiSequence(SequenceBase):
                 raise DataError(f"{self.root / 'poses.txt'}: {len(self.poses)} poses for {len(self.files)} scans")
 
     def point_times(self, pts: np.ndarray, t0: float) -> np.ndarray:
-        """Per-point times of a sweep starting at ``t0``: azimuth 0 at the start and the end,
-        turning clockwise (``clockwise=False``: counter-clockwise)."""
+        """Per-point times of a sweep starting at ``t0`` under the KITTI convention (azimuth 0
+        at the start and the end, turning clockwise; ``clockwise=False``: counter-clockwise).
+        The Scan carries the same times per column."""
         az = np.nan_to_num(np.arctan2(pts[:, 1], pts[:, 0]).astype(np.float64))
         frac = (az / (2.0 * np.pi)) % 1.0
         if self.clockwise:
@@ -183,7 +185,6 @@ class KittiSequence(SequenceBase):
             gt_inst = L.instances_from_semantic_kitti(raw)
         return self.organizer.scan(
             pts[:, :3],
-            times=self.point_times(pts, t0),
             intensity=pts[:, 3],
             name=path.stem,
             source=str(path),

@@ -114,16 +114,20 @@ def _atan2(y, x):
 
 
 @njit(cache=True, nogil=True)
-def _polar(xyz, offset):
+def _polar(xyz, offset, ok, rng, az, te, small=0.7853981633974483):
     """Per point: has a return, range, azimuth (rad, (-pi, pi]) and the tangent of the beam
     elevation ``z / (rho - offset)``, ``offset`` being the horizontal distance of the beam
     origins from the sensor axis (Ouster: ``lidar_origin_to_beam_origin``; 0 for decoders
-    that give points from one origin)."""
+    that give points from one origin). Along the input order also: the share of azimuth
+    steps between consecutive returns smaller than ``small`` and the signed sum of those
+    steps (revolutions * 2 pi), which tell the point order. Writes into ``ok, rng, az, te``
+    (work arrays reused from sweep to sweep: fresh ones cost page faults)."""
     n = xyz.shape[0]
-    ok = np.empty(n, np.bool_)
-    rng = np.zeros(n, np.float32)
-    az = np.zeros(n, np.float64)
-    te = np.zeros(n, np.float64)
+    prev = 0.0
+    have = False
+    steps = 0
+    n_small = 0
+    total = 0.0
     for i in range(n):
         x = float(xyz[i, 0])
         y = float(xyz[i, 1])
@@ -133,13 +137,29 @@ def _polar(xyz, offset):
         good = math.isfinite(r2) and r2 > 0.0
         ok[i] = good
         if not good:
+            rng[i] = 0.0
+            az[i] = 0.0
+            te[i] = 0.0
             continue
         rho = math.sqrt(rho2)
         rng[i] = math.sqrt(r2)
-        az[i] = _atan2(y, x)
+        a = _atan2(y, x)
+        az[i] = a
         h = rho - offset
         te[i] = z / h if h > 1e-6 else (1e6 if z > 0 else -1e6)
-    return ok, rng, az, te
+        if have:
+            d = a - prev
+            if d > np.pi:
+                d -= 2.0 * np.pi
+            elif d <= -np.pi:
+                d += 2.0 * np.pi
+            steps += 1
+            if abs(d) < small:
+                n_small += 1
+                total += d
+        prev = a
+        have = True
+    return n_small / max(steps, 1), total
 
 
 @njit(cache=True, nogil=True)
@@ -149,28 +169,6 @@ def _wrap(a):
     while a <= -np.pi:
         a += 2.0 * np.pi
     return a
-
-
-@njit(cache=True, nogil=True)
-def _order_stats(az, ok, small):
-    """Along the input order: share of azimuth steps smaller than ``small`` and the signed sum
-    of those steps (revolutions * 2 pi)."""
-    n = az.shape[0]
-    prev = -1
-    steps = 0
-    n_small = 0
-    total = 0.0
-    for i in range(n):
-        if not ok[i]:
-            continue
-        if prev >= 0:
-            d = _wrap(az[i] - az[prev])
-            steps += 1
-            if abs(d) < small:
-                n_small += 1
-                total += d
-        prev = i
-    return n_small / max(steps, 1), total
 
 
 @njit(cache=True, nogil=True)
@@ -214,18 +212,19 @@ def _ring_runs(az, ok, s, jitter, over):
 
 
 @njit(cache=True, nogil=True)
-def _ring_runs_cut(az, ok, s, cut, jitter):
+def _ring_runs_cut(az, ok, s, cut, jitter, run):
     """Second pass of the ring-major cut: with the sweep's cut azimuth known, a ring ends
     where the azimuth passes the cut (``u``, the angle from the cut in direction ``s``, drops
     by more than pi after the ring has travelled more than pi) or jumps back by more than
-    ``jitter`` (the ring ended early, the next one starts again near the cut)."""
+    ``jitter`` (the ring ended early, the next one starts again near the cut). Writes the
+    run of every point into ``run`` (-1 for no-return points); returns the number of runs."""
     n = az.shape[0]
-    run = np.full(n, -1, np.int64)
     cur = -1
     prog = 0.0
     up = 0.0
     for i in range(n):
         if not ok[i]:
+            run[i] = -1
             continue
         u = s * (az[i] - cut)
         u = u - 2.0 * np.pi * math.floor(u / (2.0 * np.pi))
@@ -246,7 +245,7 @@ def _ring_runs_cut(az, ok, s, cut, jitter):
                 prog += f
         run[i] = cur
         up = u
-    return run
+    return cur + 1
 
 
 @njit(cache=True, nogil=True)
@@ -318,7 +317,7 @@ def _run_spread(te, ok, lo, hi, med):
 
 
 @njit(cache=True, nogil=True)
-def _refine_cuts(te, ok, run, lo, hi, row_of_run, beam_te, window, refine):
+def _refine_cuts(te, ok, run, lo, hi, row_of_run, beam_te, window, refine, row):
     """Row of every point (-1 for no-return points); with ``refine``, each cut between
     consecutive runs of different beams moved, within ``window`` points either side, to the
     split that puts the most points with the beam they are nearer in elevation (ties: the
@@ -327,12 +326,11 @@ def _refine_cuts(te, ok, run, lo, hi, row_of_run, beam_te, window, refine):
     The azimuth alone leaves a cut ambiguous where the next ring starts a little behind the
     previous one's end (beam azimuth offsets) or a ring's first returns are missing; the
     elevation settles it when the beams' elevations are clean (the caller checks the spread
-    within rings; not so for beams with vertical offsets such as the HDL-64E's)."""
+    within rings; not so for beams with vertical offsets such as the HDL-64E's). Writes
+    into ``row``."""
     n = te.shape[0]
-    row = np.full(n, -1, np.int64)
     for i in range(n):
-        if ok[i]:
-            row[i] = row_of_run[run[i]]
+        row[i] = row_of_run[run[i]] if ok[i] else -1
     if not refine:
         return row
     m = lo.shape[0]
@@ -369,14 +367,14 @@ def _refine_cuts(te, ok, run, lo, hi, row_of_run, beam_te, window, refine):
 
 
 @njit(cache=True, nogil=True)
-def _nearest_beam(te, ok, bounds):
+def _nearest_beam(te, ok, bounds, row):
     """Row of each point: the beam whose elevation interval (between mid-points, in tangent
-    space, ``bounds`` descending) holds the point. -1 for no-return points."""
+    space, ``bounds`` descending) holds the point. -1 for no-return points. Writes into ``row``."""
     n = te.shape[0]
-    row = np.full(n, -1, np.int64)
     nb = bounds.shape[0] + 1
     for i in range(n):
         if not ok[i]:
+            row[i] = -1
             continue
         t = te[i]
         lo = 0
@@ -439,16 +437,17 @@ def _row_phase(az, row, rows, a0, s, inv_step):
 
 
 @njit(cache=True, nogil=True)
-def _scatter(az, rng, row, a0, s, inv_step, phase, rows, cols):
+def _scatter(az, rng, row, a0, s, inv_step, phase, rows, cols, rep):
     """Slot of every point and the nearest point (representative) of every slot.
 
     Returns ``point_slot`` (-1 for no-return points), ``representative`` (-1 for empty
     slots), points per row, the number of points sharing a slot with another, and how many of
     those are further returns of the same firing (the same azimuth to 1 % of a column: dual
-    or multiple returns, which share their slot by nature)."""
+    or multiple returns, which share their slot by nature). ``rep`` is a work array of
+    ``rows * cols`` entries."""
     n = az.shape[0]
     slot = np.full(n, -1, np.int64)
-    rep = np.full(rows * cols, -1, np.int64)
+    rep[:] = -1
     per_row = np.zeros(rows, np.int64)
     collisions = 0
     multi = 0
@@ -484,19 +483,19 @@ def _gather(rep, src, out):
 
 
 @njit(cache=True, nogil=True)
-def _gather3(rep, src, out):
-    """Row-wise :func:`_gather` for (N, 3) coordinates."""
-    for k in range(rep.shape[0]):
+def _fill_slots(rep, rng, xyz):
+    """Range and coordinates of every slot's representative (zeros for empty slots)."""
+    size = rep.shape[0]
+    ranges = np.zeros(size, np.float32)
+    out = np.zeros((size, 3), np.float32)
+    for k in range(size):
         j = rep[k]
         if j >= 0:
-            out[k, 0] = src[j, 0]
-            out[k, 1] = src[j, 1]
-            out[k, 2] = src[j, 2]
-        else:
-            out[k, 0] = 0.0
-            out[k, 1] = 0.0
-            out[k, 2] = 0.0
-    return out
+            ranges[k] = rng[j]
+            out[k, 0] = xyz[j, 0]
+            out[k, 1] = xyz[j, 1]
+            out[k, 2] = xyz[j, 2]
+    return ranges, out
 
 
 @njit(cache=True, nogil=True)
@@ -627,7 +626,7 @@ def beam_concentration(te: np.ndarray, beam_te: np.ndarray) -> float:
     ang = np.arctan(beam_te)  # descending
     el = np.arctan(te)
     bounds = _beam_bounds(beam_te)
-    row = _nearest_beam(te, np.ones(len(te), bool), bounds)
+    row = _nearest_beam(te, np.ones(len(te), bool), bounds, np.empty(len(te), np.int64))
     gaps = np.abs(np.diff(ang))
     local = np.empty(len(ang))
     local[0], local[-1] = gaps[0], gaps[-1]
@@ -656,9 +655,17 @@ class Organizer:
         Name of the sequence, for messages.
     sweep_period : float
         Duration of one sweep (s), for per-column times when no per-point times are given.
-    time_follows_order : bool
-        Whether the input order is the firing order (so column 0 is fired first). False for
-        sources whose order runs against time (e.g. KITTI's bins; give ``times`` then).
+    spin : {None, "cw", "ccw"}
+        The sensor's direction of rotation seen from above (``cw``: azimuth falls in time),
+        when the source's convention fixes it (KITTI: ``cw``); otherwise taken from per-point
+        times, else from the point order (the order is taken as the firing order).
+    start_azimuth : float, optional
+        Azimuth (rad) where a sweep starts, when the source's convention fixes it (KITTI: 0);
+        otherwise the azimuth of the first point in time (or in order).
+
+    Columns run in firing order from the sweep's start: column ``c`` holds the azimuths
+    ``start + direction * (c + phase_r +- 0.5) * 2 pi / cols``; without per-point times, column
+    ``c`` is stamped ``frame_time + (c + 0.5) / cols * sweep_period``.
     """
 
     def __init__(
@@ -669,14 +676,17 @@ class Organizer:
         method: str = "auto",
         source_name: str = "seq",
         sweep_period: float = 0.1,
-        time_follows_order: bool = True,
+        spin: str | None = None,
+        start_azimuth: float | None = None,
     ) -> None:
         if method not in METHODS:
             raise ValueError(f"organiser method {method!r}; choose from {METHODS}")
+        if spin not in (None, "cw", "ccw"):
+            raise ValueError(f"organiser spin {spin!r}; choose from None, 'cw', 'ccw'")
         self.method = method
         self.source_name = source_name
         self.sweep_period = float(sweep_period)
-        self.time_follows_order = time_follows_order
+        self.spin = spin
         self.expected_rows = int(rows) if rows is not None else None
         self.cols = int(cols) if cols is not None else None
         self.beam_te: np.ndarray | None = None
@@ -687,15 +697,26 @@ class Organizer:
             self.beam_te = np.sort(np.tan(alt))[::-1]
             self.expected_rows = len(alt)
         self.ring_ids: np.ndarray | None = None  # ring field values, in row order
-        self.direction: int | None = None
-        self.a0: float | None = None
+        self.direction: int | None = None if spin is None else (-1 if spin == "cw" else 1)
+        self.a0: float | None = None if start_azimuth is None else float(start_azimuth)
         self.phase: np.ndarray | None = None
         self._order_direction: int | None = None
+        self._order: tuple[float, float] = (0.0, 0.0)
+        self._buffers: dict[str, np.ndarray] = {}
         self.beam_offset: float | None = None
         self.clean_rings: bool | None = None
         self._cut: float | None = None
         self.frames = 0
         self.warnings_total = 0
+
+    def _work(self, name: str, n: int, dtype) -> np.ndarray:
+        """A work array of ``n`` entries kept from sweep to sweep (fresh megabyte arrays cost
+        page faults on every sweep, about as much as the organising itself)."""
+        buf = self._buffers.get(name)
+        if buf is None or len(buf) < n or buf.dtype != dtype:
+            buf = np.empty(max(n, int(1.25 * n)), dtype)
+            self._buffers[name] = buf
+        return buf[:n]
 
     # ------------------------------------------------------------------ public API
     def scan(
@@ -729,7 +750,13 @@ class Organizer:
         cloud = np.array(xyz, dtype=np.float32, order="C")  # Scan.cloud (no-return rows zeroed later)
         if self.beam_offset is None:
             self.beam_offset = 0.0 if ring is not None else estimate_beam_offset(cloud)
-        ok, rng, az, te = _polar(cloud, self.beam_offset)
+        ok, rng, az, te = (
+            self._work("ok", n, np.bool_),
+            self._work("rng", n, np.float32),
+            self._work("az", n, np.float64),
+            self._work("te", n, np.float64),
+        )
+        self._order = _polar(cloud, self.beam_offset, ok, rng, az, te)
         n_ok = int(ok.sum())
         if n_ok == 0:
             raise DataError(f"{source}: no point with a return ({n} points, all NaN/inf or at the origin)")
@@ -748,7 +775,8 @@ class Organizer:
         if self.phase is None or len(self.phase) != rows:
             phase, strength = _row_phase(az, row, rows, a0, s, inv_step)
             self.phase = np.where(strength > 0.3, phase, 0.5)
-        slot, rep, per_row, collisions, multi = _scatter(az, rng, row, a0, s, inv_step, self.phase, rows, cols)
+        rep = self._work("rep", rows * cols, np.int64)
+        slot, rep, per_row, collisions, multi = _scatter(az, rng, row, a0, s, inv_step, self.phase, rows, cols, rep)
         report = self._check(method, rows, cols, per_row, collisions, n_ok, n - n_ok, source, warnings, multi)
         return self._build(
             cloud, ok, rng, te, slot, rep, rows, cols, s, a0, times, intensity, name, source, frame_time,
@@ -775,7 +803,9 @@ class Organizer:
             raise DataError(f"{source}: an organised cloud must be (H, W, 3), got shape {g.shape}")
         H, W = g.shape[:2]
         flat = np.array(g[..., :3].reshape(-1, 3), dtype=np.float32, order="C")
-        ok, rng, az, te = _polar(flat, 0.0)
+        n_all = len(flat)
+        ok, rng, az, te = (np.empty(n_all, bool), np.empty(n_all, np.float32), np.empty(n_all), np.empty(n_all))
+        _polar(flat, 0.0, ok, rng, az, te)
         if not ok.any():
             raise DataError(f"{source}: no point with a return in the {H} x {W} organised cloud")
         warnings: list[str] = []
@@ -847,8 +877,9 @@ class Organizer:
             raise DataError(f"{source}: organiser method 'ring' but the source has no ring field")
         layout = "unordered"
         if method in ("auto", "order"):
-            # beams with azimuth offsets (Ouster OS-0: +-11 deg) make column-major steps large
-            frac, total = _order_stats(az, ok, np.radians(45.0))
+            # steps under 45 deg: beams with azimuth offsets (Ouster OS-0: +-11 deg) make
+            # column-major steps large
+            frac, total = self._order
             revs = abs(total) / TWO_PI
             if frac > 0.7 and revs >= 1.5:
                 layout = "ring-major"
@@ -904,14 +935,15 @@ class Organizer:
             lo, hi = _run_bounds(run, int(run.max()) + 1)
             self._cut = self._cut_azimuth(az, lo, hi, s, step_guess)
         # cut the rings where they pass the sweep's cut azimuth (late ring starts do not chain)
-        run = _ring_runs_cut(az, ok, float(s), self._cut, np.radians(15.0))
-        lo, hi = _run_bounds(run, int(run.max()) + 1)
+        run = self._work("run", len(az), np.int64)
+        n_runs = _ring_runs_cut(az, ok, float(s), self._cut, np.radians(15.0), run)
+        lo, hi = _run_bounds(run, n_runs)
         self._cut = self._cut_azimuth(az, lo, hi, s, step_guess)  # followed from sweep to sweep
         med, cnt = _run_medians(te, ok, lo, hi)
         if self.beam_te is None:
             self.beam_te = self._beams_from_runs(med, cnt)
         bounds = _beam_bounds(self.beam_te)
-        row_of_run = _nearest_beam(med, cnt > 0, bounds)
+        row_of_run = _nearest_beam(med, cnt > 0, bounds, np.empty(len(med), np.int64))
         if self.clean_rings is None:
             # rings are elevation-clean when points of one ring spread far less than the beam gap
             spread = _run_spread(te, ok, lo, hi, med)
@@ -919,7 +951,8 @@ class Organizer:
             sp = float(np.nanmedian(np.arctan(spread[cnt >= 0.2 * cnt.max()]))) if (cnt > 0).any() else 0.0
             self.clean_rings = bool(sp < 0.1 * float(np.median(gaps)))
         window = int(max(32, 0.1 * float(np.median(cnt[cnt > 0]))))
-        row = _refine_cuts(te, ok, run, lo, hi, row_of_run, self.beam_te, window, self.clean_rings)
+        row = self._work("row", len(te), np.int64)
+        _refine_cuts(te, ok, run, lo, hi, row_of_run, self.beam_te, window, self.clean_rings, row)
         return row, len(self.beam_te)
 
     @staticmethod
@@ -960,7 +993,7 @@ class Organizer:
                     "points carry no ring field and no consistent order"
                 )
             self.beam_te = beam_te
-        row = _nearest_beam(te, ok, _beam_bounds(self.beam_te))
+        row = _nearest_beam(te, ok, _beam_bounds(self.beam_te), self._work("row", len(te), np.int64))
         return row, len(self.beam_te)
 
     # ------------------------------------------------------------------ columns
@@ -977,16 +1010,12 @@ class Organizer:
                 s = 1 if d.sum() >= 0 else -1
             elif self._order_direction is not None and method != "ring-field":
                 s = self._order_direction
-                if not self.time_follows_order:
-                    s = -s
             self.direction = s
         if self.a0 is None:
             first = int(np.argmax(ok))
             if times is not None:
                 idx = np.flatnonzero(ok)
                 first = int(idx[np.argmin(times[idx])])
-            elif not self.time_follows_order:
-                first = int(np.flatnonzero(ok)[-1])
             self.a0 = float(az[first])
         return self.direction, self.a0
 
@@ -1089,8 +1118,7 @@ class Organizer:
         gt_point_labels, gt_point_instance, gt_pose, report, collisions, slot_times_given,
     ):  # fmt: skip
         size = rows * cols
-        ranges = _gather(rep, rng, np.empty(size, np.float32))
-        slot_xyz = _gather3(rep, cloud, np.empty((size, 3), np.float32))
+        ranges, slot_xyz = _fill_slots(rep, rng, cloud)
         point_slot = slot
         if report.nonfinite_points:
             cloud[~ok] = 0.0
