@@ -17,7 +17,8 @@ from prc_slam.online.car import CarParams, detect_cars
 from prc_slam.online.coarse import CoarseParams, CoarseResult, coarse_classify
 from prc_slam.online.curb import CurbParams, detect_curbs
 from prc_slam.online.ground import GroundDetector, GroundParams
-from prc_slam.scan import ProfilerSensor, Scan
+from prc_slam.online.spinning import SpinningCarParams, column_ground, detect_cars_spinning
+from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
 
 
 @dataclass
@@ -31,6 +32,9 @@ class OnlineResult:
     car_instances: np.ndarray | None = None
     ground_height: float | None = None
     seconds: float = 0.0
+    pose: np.ndarray | None = None  # (4, 4) world-from-sensor pose used for the world-frame outputs
+    car_boxes_world: list[dict] = field(default_factory=list)
+    curb_polylines_world: list[np.ndarray] = field(default_factory=list)
 
 
 def default_coarse_params(scan: Scan) -> CoarseParams:
@@ -61,12 +65,16 @@ class OnlineDetector:
         curb: CurbParams | None = None,
         car: CarParams | None = None,
         per_line_height: bool = False,
+        spinning: SpinningCarParams | None = None,
+        spinning_path: bool = True,
     ) -> None:
         self.coarse_params = coarse
         self.curb_params = curb or CurbParams()
         self.car_params = car or CarParams()
         self.ground = GroundDetector(ground)
         self.per_line_height = per_line_height
+        self.spinning_params = spinning or SpinningCarParams()
+        self.spinning_path = spinning_path
 
     @classmethod
     def paper(cls) -> OnlineDetector:
@@ -80,20 +88,60 @@ class OnlineDetector:
             curb=CurbParams(last_only=True, max_gap=float("inf"), min_height=0.0),
             car=CarParams(min_above_ground=0.0, curb_bridge=0.0),
             per_line_height=True,
+            spinning_path=False,
         )
 
-    def process(self, scan: Scan) -> OnlineResult:
-        """Label every slot of ``scan``."""
+    def process(self, scan: Scan, pose: np.ndarray | None = None) -> OnlineResult:
+        """Label every slot of ``scan``.
+
+        Car boxes and curb polylines come in the sensor frame and, given the sensor's world pose
+        ``pose`` (4 x 4; default the scan's ``gt_pose``), also in the world frame
+        (``car_boxes_world``, ``curb_polylines_world``; empty without a pose).
+        """
         t0 = time.perf_counter()
         coarse = coarse_classify(scan, self.coarse_params or default_coarse_params(scan))
         ground = self.ground.process(scan, coarse)
         heights = self.ground.line_heights if self.per_line_height else self.ground.height
+        line_heights = self.ground.line_heights
+        spinning = self.spinning_path and isinstance(scan.sensor, SpinningSensor)
+        if spinning and line_heights is None:  # columns too short for Sec. 5 (a): the column profile
+            ground, line_heights, heights = column_ground(scan, coarse.lines)
+            if self.per_line_height:
+                heights = line_heights
         curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
-        cars = detect_cars(scan, coarse, heights, curbs.mask, self.car_params)
+        if spinning and line_heights is not None:
+            cars = detect_cars_spinning(
+                scan, ground, coarse.lines, line_heights, coarse.codes == L.VEGETATION, self.spinning_params
+            )
+        else:
+            cars = detect_cars(scan, coarse, heights, curbs.mask, self.car_params)
+        self.last_cars = cars
         labels = coarse.codes.copy()
         labels[ground] = L.GROUND
         labels[curbs.mask] = L.CURB
         labels[cars.mask & ~curbs.mask] = L.VEHICLE
-        return OnlineResult(
-            labels, coarse, curbs.polylines, cars.boxes, cars.instances, self.ground.height, time.perf_counter() - t0
-        )
+        zd = self.ground.height if self.ground.height is not None else (heights if np.isscalar(heights) else None)
+        seconds = time.perf_counter() - t0
+        pose = scan.gt_pose if pose is None else np.asarray(pose, dtype=np.float64)
+        result = OnlineResult(labels, coarse, curbs.polylines, cars.boxes, cars.instances, zd, seconds, pose)
+        if pose is not None:
+            if pose.shape != (4, 4) or not np.isfinite(pose).all():
+                raise ValueError(f"{scan.source}: pose must be a finite 4 x 4 matrix, got shape {pose.shape}")
+            result.car_boxes_world = boxes_to_world(cars.boxes, pose)
+            result.curb_polylines_world = [p @ pose[:3, :3].T.astype(np.float32) + pose[:3, 3] for p in curbs.polylines]
+        return result
+
+
+def boxes_to_world(boxes: list[dict], pose: np.ndarray) -> list[dict]:
+    """Oriented boxes (centre, size, yaw about the sensor's z) moved into the world frame by
+    ``pose``; the yaw gains the pose's heading (boxes stay upright: the roll and pitch of a
+    vehicle-mounted sensor are small, and the viewer draws boxes about the world's z)."""
+    rot, t = pose[:3, :3], pose[:3, 3]
+    heading = float(np.arctan2(rot[1, 0], rot[0, 0]))
+    out = []
+    for b in boxes:
+        w = dict(b)
+        w["center"] = (rot @ np.asarray(b["center"], dtype=np.float64) + t).tolist()
+        w["yaw"] = float(np.arctan2(np.sin(b["yaw"] + heading), np.cos(b["yaw"] + heading)))
+        out.append(w)
+    return out

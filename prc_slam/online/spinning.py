@@ -1,0 +1,531 @@
+"""The car algorithm of Stamos et al. (paper 001) carried to spinning multi-beam sensors.
+
+A 64-beam column holds a handful of returns per car side, too few for the per-column H/V/M
+chains and dividers of Sec. 7.2-7.3; a ring, on the other hand, is a dense horizontal profile
+of everything at one elevation. The steps, and the paper section each follows:
+
+1. Local ground along the column profile (Sec. 5): the ground algorithm runs on the columns as
+   before; each return's ground height is that of the last ground return below it in its own
+   column (the column profile carries the ground), else the column's ``z_i`` / the dominant
+   ``z_d``. Heights are taken above that local ground.
+2. Candidates (Sec. 3, contextual truth 1 and 3): non-ground returns between
+   ``min_above_ground`` (above the highest curb, ``t_curb = 0.2 m`` of Sec. 6) and
+   ``max_height`` above the local ground.
+3. Intervals along rings and across beams (Sec. 7.3, dividers): candidates join their next return
+   along the ring and across beams (missing slots, the M state of windows and dark paint, are
+   skipped up to ``ring_gap`` / ``beam_gap`` slots) unless the step between them is a divider,
+   longer than ``gate`` (at least ``min_gate``, else ``gate_factor`` times the expected spacing of
+   the two slots at that range): the spinning analogue of ``t_sep``, scaled to the beam pattern.
+   Connected candidates form segments, one potential car each.
+4. High verticals (Sec. 7.4): a segment whose returns continue upward past ``max_height`` in the
+   next beam of the same column, on more than ``high_share`` of its columns, is a wall, a tree
+   or a pole and no car ("no car can lie behind such vertical objects" becomes: no car is part of
+   one).
+5. Contextual truth 3 (Sec. 3): a car's top lies between ``min_top`` and ``max_height`` above the
+   ground, its lowest return within ``max_bottom`` of it (cars stand on the ground), its oriented
+   footprint no longer than ``max_length`` and no wider than ``max_width``, and it is no thin sheet
+   (``min_thickness``: the spread across its principal axis; a car has a roof set back from its
+   sides, a wall or fence has not).
+6. Car vs vegetation along rings (Sec. 7.1 / 7.5): vegetation makes the signed angles of a
+   profile alternate; along a ring that is a large normalised second difference
+   ``|X_{k-1} - 2 X_k + X_{k+1}| / |X_{k+1} - X_{k-1}|`` between successive returns. A segment
+   whose median over its ring triples exceeds ``max_roughness`` is vegetation (the Fourier test's
+   "high variation", measured as curvature rather than spectrum: rings through a car give 5-30
+   returns per segment, too few for a spectrum).
+
+Each accepted segment is one car instance with an oriented box (principal axis of its
+footprint). Nothing is learned; the thresholds are car geometry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from prc_slam.scan import Scan, SpinningSensor
+
+
+@dataclass(frozen=True)
+class SpinningCarParams:
+    """Car geometry and segment links for spinning sensors (module docstring, steps 2-6)."""
+
+    min_above_ground: float = 0.25  # m, above Sec. 6's tallest curb (t_curb = 0.2 m)
+    max_height: float = 2.6  # m above ground: candidates, and the high-vertical limit
+    min_gate: float = 0.5  # m
+    gate_factor: float = 3.0  # times the expected slot spacing at that range
+    max_gate: float = 2.0  # m
+    see_through: bool = True  # up a column, a farther return (through a window) counts as missing
+    diagonal: bool = False  # also link up the neighbouring columns (staggered or grazing returns)
+    ring_baseline: float = 0.3  # m, least step between the returns of a ring triple (step 6)
+    min_points: int = 12
+    min_top: float = 1.15  # m above ground: a car roof (1.4-1.6 m) less the local ground's error
+    max_top: float = 2.3  # m above ground, 90 % of a segment's returns: cars, SUVs, most vans
+    max_top_gap: float = 0.6  # m, most of the beam gap above a segment the roof test allows
+    min_length: float = 1.0  # m: the longer footprint side; a car's shortest side is ~1.6 m
+    max_bottom: float = 0.5  # m above ground
+    max_length: float = 8.0  # m
+    max_width: float = 3.2  # m
+    min_thickness: float = 0.15  # m, 10-90 % spread across the principal axis
+    high_share: float = 0.2
+    max_roughness: float = 0.35
+    min_ring_triples: int = 3  # ring triples (returns >= ring_baseline apart along a ring) a car shows at least
+    max_vegetation: float = 0.5  # share of the segment's returns the coarse classifier calls vegetation
+
+
+@njit(cache=True, nogil=True)
+def _find(parent, a):
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
+
+
+@njit(cache=True, nogil=True)
+def _union(parent, a, b):
+    ra = _find(parent, a)
+    rb = _find(parent, b)
+    if ra != rb:
+        if ra < rb:
+            parent[rb] = ra
+        else:
+            parent[ra] = rb
+
+
+@njit(cache=True, nogil=True)
+def _d2(xyz, r0, c0, r1, c1):
+    dx = xyz[r0, c0, 0] - xyz[r1, c1, 0]
+    dy = xyz[r0, c0, 1] - xyz[r1, c1, 1]
+    dz = xyz[r0, c0, 2] - xyz[r1, c1, 2]
+    return dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True, nogil=True)
+def segment_candidates(
+    cand, valid, high, xyz, rng, ring_step, alt, min_gate, gate_factor, max_gate, see_through, diagonal
+):
+    """Steps 3-4 on an image whose rows are beams in elevation order (lowest first).
+
+    Returns ``(seg, n, high_touch, tops)``: segment id per slot (0 = none), the number of
+    segments, and per segment the number of its column tops whose next return up is ``high``
+    and within the gate, and the number of its column tops."""
+    R, C = cand.shape
+    parent = np.arange(R * C + 1).astype(np.int64)
+    for r in range(R):
+        for c in range(C):
+            if not cand[r, c]:
+                continue
+            # next return along the ring (wrapping), skipping up to ring_gap missing slots
+            for s in range(1, C):
+                if s > 1 and rng[r, c] * ring_step * (s - 1) > max_gate:
+                    break
+                c1 = (c + s) % C
+                if not valid[r, c1]:  # missing (M); a farther return is the background: a divider
+                    continue
+                if cand[r, c1]:
+                    g = max(min_gate, min(max_gate, gate_factor * rng[r, c] * ring_step * s))
+                    if _d2(xyz, r, c, r, c1) <= g * g:
+                        _union(parent, r * C + c + 1, r * C + c1 + 1)
+                break
+            # next return up the column, and up its two neighbouring columns
+            for dc in range(-diagonal, diagonal + 1):
+                c2 = (c + dc) % C
+                for s in range(1, R):
+                    r1 = r + s
+                    if r1 >= R or (s > 1 and rng[r, c] * (alt[r1 - 1] - alt[r]) > max_gate):
+                        break
+                    if not valid[r1, c2] or (see_through and rng[r1, c2] > rng[r, c] + max_gate):  # M, or glass
+                        continue
+                    if cand[r1, c2]:
+                        g = max(min_gate, min(max_gate, gate_factor * rng[r, c] * (alt[r1] - alt[r])))
+                        if _d2(xyz, r, c, r1, c2) <= g * g:
+                            _union(parent, r * C + c + 1, r1 * C + c2 + 1)
+                    break
+    seg = np.zeros((R, C), np.int32)
+    root_id = np.zeros(R * C + 1, np.int32)
+    n = 0
+    for r in range(R):
+        for c in range(C):
+            if cand[r, c]:
+                root = _find(parent, r * C + c + 1)
+                if root_id[root] == 0:
+                    n += 1
+                    root_id[root] = n
+                seg[r, c] = root_id[root]
+    high_touch = np.zeros(n + 1, np.int64)
+    tops = np.zeros(n + 1, np.int64)
+    for c in range(C):
+        for r in range(R):
+            k = seg[r, c]
+            if k == 0:
+                continue
+            # the next return up this column
+            up = -1
+            for r1 in range(r + 1, R):
+                if valid[r1, c]:
+                    up = r1
+                    break
+            if up >= 0 and seg[up, c] == k:
+                continue
+            tops[k] += 1
+            if up < 0 and r == R - 1:  # on the highest beam: the object may go on out of view
+                high_touch[k] += 1
+            elif up >= 0 and high[up, c]:
+                g = max(min_gate, min(max_gate, gate_factor * rng[r, c] * (alt[up] - alt[r])))
+                if _d2(xyz, r, c, up, c) <= g * g:
+                    high_touch[k] += 1
+    return seg, n, high_touch, tops
+
+
+@njit(cache=True, nogil=True)
+def segment_features(seg, n, xyz, height, valid, baseline):
+    """Per segment (index 1..n): points, lowest and highest height above ground, footprint
+    length / width (oriented by the principal axis), thickness (10-90 % spread across that
+    axis, from a histogram), and the median normalised second difference along rings."""
+    R, C = seg.shape
+    cnt = np.zeros(n + 1)
+    sx = np.zeros(n + 1)
+    sy = np.zeros(n + 1)
+    sxx = np.zeros(n + 1)
+    sxy = np.zeros(n + 1)
+    syy = np.zeros(n + 1)
+    hlo = np.full(n + 1, np.inf)
+    hhi = np.full(n + 1, -np.inf)
+    nh = 64
+    hh = np.zeros((n + 1, nh), np.int64)  # heights in 0.1 m bins
+    for r in range(R):
+        for c in range(C):
+            k = seg[r, c]
+            if k == 0:
+                continue
+            x = xyz[r, c, 0]
+            y = xyz[r, c, 1]
+            cnt[k] += 1
+            sx[k] += x
+            sy[k] += y
+            sxx[k] += x * x
+            sxy[k] += x * y
+            syy[k] += y * y
+            hlo[k] = min(hlo[k], height[r, c])
+            hhi[k] = max(hhi[k], height[r, c])
+            hh[k, min(nh - 1, max(0, int(height[r, c] / 0.1)))] += 1
+    mx = sx / np.maximum(cnt, 1)
+    my = sy / np.maximum(cnt, 1)
+    ux = np.ones(n + 1)
+    uy = np.zeros(n + 1)
+    for k in range(1, n + 1):
+        a = sxx[k] / max(cnt[k], 1) - mx[k] ** 2
+        b = sxy[k] / max(cnt[k], 1) - mx[k] * my[k]
+        d = syy[k] / max(cnt[k], 1) - my[k] ** 2
+        theta = 0.5 * np.arctan2(2 * b, a - d)  # principal axis of the 2x2 covariance
+        ux[k] = np.cos(theta)
+        uy[k] = np.sin(theta)
+    lo_u = np.full(n + 1, np.inf)
+    hi_u = np.full(n + 1, -np.inf)
+    lo_v = np.full(n + 1, np.inf)
+    hi_v = np.full(n + 1, -np.inf)
+    nb = 64
+    hist = np.zeros((n + 1, nb), np.int64)
+    bin_w = 0.1  # m, histogram of the across-axis offset over +-3.2 m
+    for r in range(R):
+        for c in range(C):
+            k = seg[r, c]
+            if k == 0:
+                continue
+            x = xyz[r, c, 0] - mx[k]
+            y = xyz[r, c, 1] - my[k]
+            u = x * ux[k] + y * uy[k]
+            v = -x * uy[k] + y * ux[k]
+            lo_u[k] = min(lo_u[k], u)
+            hi_u[k] = max(hi_u[k], u)
+            lo_v[k] = min(lo_v[k], v)
+            hi_v[k] = max(hi_v[k], v)
+            b = int(np.floor(v / bin_w)) + nb // 2
+            hist[k, min(nb - 1, max(0, b))] += 1
+    thick = np.zeros(n + 1)
+    for k in range(1, n + 1):
+        lo_q = 0.1 * cnt[k]
+        hi_q = 0.9 * cnt[k]
+        acc = 0.0
+        b10 = -1
+        b90 = -1
+        for b in range(nb):
+            acc += hist[k, b]
+            if b10 < 0 and acc >= lo_q:
+                b10 = b
+            if b90 < 0 and acc >= hi_q:
+                b90 = b
+        thick[k] = (b90 - b10) * bin_w
+    # roughness along rings: normalised second differences of returns of one segment taken at
+    # least ``baseline`` apart along the ring (closer returns differ by their range noise)
+    rough_hist = np.zeros((n + 1, 20), np.int64)
+    n_rough = np.zeros(n + 1, np.int64)
+    for r in range(R):
+        k0 = 0
+        p1 = -1
+        p2 = -1
+        for c in range(C):
+            if not valid[r, c]:
+                continue
+            k = seg[r, c]
+            if k != k0:  # another segment or none: start again
+                k0 = k
+                p1 = c if k != 0 else -1
+                p2 = -1
+                continue
+            if k == 0:
+                continue
+            d2 = _d2(xyz, r, c, r, p1)
+            if d2 < baseline * baseline:
+                continue
+            if p2 >= 0:
+                ax = xyz[r, p2, 0] - 2 * xyz[r, p1, 0] + xyz[r, c, 0]
+                ay = xyz[r, p2, 1] - 2 * xyz[r, p1, 1] + xyz[r, c, 1]
+                az = xyz[r, p2, 2] - 2 * xyz[r, p1, 2] + xyz[r, c, 2]
+                q = np.sqrt(ax * ax + ay * ay + az * az) / max(np.sqrt(_d2(xyz, r, c, r, p2)), 1e-6)
+                rough_hist[k, min(19, int(q * 10.0))] += 1
+                n_rough[k] += 1
+            p2 = p1
+            p1 = c
+    rough = np.zeros(n + 1)
+    for k in range(1, n + 1):
+        if n_rough[k] == 0:
+            rough[k] = 0.0
+            continue
+        acc = 0.0
+        for b in range(20):
+            acc += rough_hist[k, b]
+            if acc >= 0.5 * n_rough[k]:
+                rough[k] = (b + 0.5) / 10.0
+                break
+    top90 = np.zeros(n + 1)
+    for k in range(1, n + 1):
+        acc = 0.0
+        for b in range(nh):
+            acc += hh[k, b]
+            if acc >= 0.9 * cnt[k]:
+                top90[k] = (b + 1) * 0.1
+                break
+    length = np.maximum(hi_u - lo_u, 0.0)
+    width = np.maximum(hi_v - lo_v, 0.0)
+    return cnt, hlo, hhi, top90, length, width, thick, rough, n_rough
+
+
+@njit(cache=True, nogil=True)
+def _column_ground(xyz, valid, lines, zd, tol, slope, max_step, eps):
+    n_lines = lines.shape[0]
+    ground = np.zeros(xyz.shape[0], np.bool_)
+    height = np.full(n_lines, zd)
+    for li in range(n_lines):
+        last = -1
+        for j in range(lines.shape[1]):
+            s = lines[li, j]
+            if s < 0:
+                break
+            if not valid[s]:
+                continue
+            if last < 0:
+                if abs(xyz[s, 2] - zd) < tol:
+                    ground[s] = True
+                    height[li] = xyz[s, 2]
+                    last = s
+                continue
+            dh = np.sqrt(xyz[s, 0] ** 2 + xyz[s, 1] ** 2) - np.sqrt(xyz[last, 0] ** 2 + xyz[last, 1] ** 2)
+            if dh > 0 and abs(xyz[s, 2] - xyz[last, 2]) <= min(slope * dh, max_step) + eps:
+                ground[s] = True
+                last = s
+    return ground, height
+
+
+def column_ground(
+    scan: Scan, lines: np.ndarray, rel_tolerance: float = 0.10, max_slope: float = 10.0, max_step: float = 0.2
+):
+    """Ground along the column profile for sensors whose columns are too short for Sec. 5 part
+    (a) (a 16-beam column holds fewer than its 10 consecutive horizontal returns).
+
+    Sec. 5 part (b) with one estimate per column: ``z_i`` is the column's first return, ``z_d``
+    the main mean-shift mode of the ``z_i`` (0.2 m bandwidth); a column's first return within the
+    paper's 10 % of ``|z_d|`` starts its ground, and each later return continues it when it lies
+    farther out and at most ``max_slope`` (plus 5 cm of noise), and never more than ``max_step``
+    (Sec. 6's tallest curb), above or below the last ground return: the line angles of Sec. 3
+    staying collinear, read across an occlusion too.
+
+    Returns
+    -------
+    ground : bool (rows, cols); heights : float64 per line (``z_i``, else ``z_d``); zd : float or None
+    """
+    from prc_slam.online.ground import mean_shift_modes
+
+    xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
+    valid = scan.valid.ravel()
+    ok = lines >= 0
+    v = valid[np.where(ok, lines, 0)] & ok
+    has = v.any(axis=1)
+    if not has.any():
+        return np.zeros(scan.shape, bool), np.zeros(len(lines)), None
+    first = lines[has, np.argmax(v[has], axis=1)]
+    modes, _ = mean_shift_modes(xyz[first, 2], 0.2)
+    zd = float(modes[0])
+    ground, height = _column_ground(
+        xyz, valid, lines, zd, rel_tolerance * abs(zd), np.tan(np.radians(max_slope)), max_step, 0.05
+    )
+    return ground.reshape(scan.shape), height, zd
+
+
+@dataclass
+class SpinningCars:
+    """Car returns of one sweep and the segment evidence behind them."""
+
+    mask: np.ndarray  # bool (rows, cols)
+    instances: np.ndarray  # int32 (rows, cols), 0 = no car, 1.. = car instance
+    boxes: list[dict] = field(default_factory=list)
+    segments: np.ndarray | None = None  # int32 (rows, cols): every candidate segment
+    features: dict[str, np.ndarray] = field(default_factory=dict)  # per segment, index 0 unused
+    accepted: np.ndarray | None = None  # bool per segment
+
+
+def local_ground(lines: np.ndarray, ground: np.ndarray, z: np.ndarray, line_height: np.ndarray) -> np.ndarray:
+    """Ground height under every slot (step 1): the height of the last ground return before it in
+    its scan line (a spinning sensor's column, lowest beam first), else the line's own height.
+
+    Parameters
+    ----------
+    lines : int64 (L, n), flat slot indices per scan line (``-1`` pads)
+    ground : bool, flat per slot
+    z : float, flat per slot
+    line_height : float (L,), fallback per line
+
+    Returns
+    -------
+    float64, flat per slot (NaN for slots on no line)
+    """
+    ok = lines >= 0
+    safe = np.where(ok, lines, 0)
+    g = ground[safe] & ok
+    pos = np.where(g, np.arange(lines.shape[1])[None, :], -1)
+    last = np.maximum.accumulate(pos, axis=1)
+    zl = z[safe]
+    height = np.where(last >= 0, np.take_along_axis(zl, np.maximum(last, 0), axis=1), line_height[:, None])
+    out = np.full(ground.shape, np.nan)
+    out[lines[ok]] = height[ok]
+    return out
+
+
+def detect_cars_spinning(
+    scan: Scan,
+    ground: np.ndarray,
+    lines: np.ndarray,
+    line_height: np.ndarray,
+    vegetation: np.ndarray | None = None,
+    params: SpinningCarParams | None = None,
+) -> SpinningCars:
+    """Cars of one sweep of a spinning sensor (module docstring), given the ground mask, the scan
+    lines (columns, lowest beam first) and each line's ground height."""
+    if not isinstance(scan.sensor, SpinningSensor):
+        raise TypeError(
+            f"{scan.source}: detect_cars_spinning needs a spinning sensor, got {type(scan.sensor).__name__}"
+        )
+    p = params or SpinningCarParams()
+    sensor = scan.sensor
+    vegetation = np.zeros(scan.shape, bool) if vegetation is None else vegetation
+    rows, cols = scan.shape
+    xyz = scan.slot_xyz().astype(np.float64)
+    valid = scan.valid
+    zg = local_ground(lines, ground.ravel(), xyz[..., 2].ravel(), line_height).reshape(rows, cols)
+    height = xyz[..., 2] - np.where(np.isnan(zg), np.inf, zg)
+    order = np.argsort(sensor.altitude, kind="stable")  # rows by elevation, lowest first
+    alt = sensor.altitude[order]
+    o_xyz = np.ascontiguousarray(xyz[order])
+    o_valid = np.ascontiguousarray(valid[order])
+    o_h = np.ascontiguousarray(height[order])
+    o_ground = np.ascontiguousarray(ground[order])
+    cand = o_valid & ~o_ground & (o_h >= p.min_above_ground) & (o_h <= p.max_height)
+    high = o_valid & (o_h > p.max_height)
+    rng = np.ascontiguousarray(scan.ranges[order].astype(np.float64))
+    seg_o, n, high_touch, tops = segment_candidates(
+        cand, o_valid, high, o_xyz, rng, 2.0 * np.pi / cols, np.ascontiguousarray(alt),
+        p.min_gate, p.gate_factor, p.max_gate, p.see_through, int(p.diagonal),
+    )  # fmt: skip
+    cnt, hlo, hhi, top90, length, width, thick, rough, n_rough = segment_features(
+        seg_o, n, o_xyz, np.where(np.isfinite(o_h), o_h, 0.0), o_valid, p.ring_baseline
+    )
+    share = high_touch / np.maximum(tops, 1)
+    # the top is seen up to one beam gap below the object's top (a 16-beam sensor's 2 deg are 0.5 m
+    # at 15 m): the roof test allows for the gap above the highest return of each segment
+    gaps = np.empty(rows)
+    gaps[:-1] = np.diff(alt) if rows > 1 else 0.0
+    gaps[-1] = 0.0
+    sel = np.flatnonzero(seg_o.ravel())
+    top_at = np.zeros(n + 1, np.int64)
+    if len(sel):
+        ids = seg_o.ravel()[sel]
+        by = np.lexsort((o_h.ravel()[sel], ids))
+        last = np.r_[np.flatnonzero(np.diff(ids[by])), len(by) - 1]
+        top_at[ids[by][last]] = sel[by][last]
+    top_gap = rng.ravel()[top_at] * np.abs(gaps[top_at // cols])
+    cnt_all = np.bincount(seg_o.ravel(), minlength=n + 1)
+    veg = np.bincount(seg_o.ravel(), weights=np.ascontiguousarray(vegetation[order]).ravel(), minlength=n + 1)
+    veg_share = veg / np.maximum(cnt_all, 1)
+    ok = (
+        (cnt >= p.min_points)
+        & (hhi + np.minimum(top_gap, p.max_top_gap) >= p.min_top)
+        & (top90 <= p.max_top)
+        & (hlo <= p.max_bottom)
+        & (length <= p.max_length)
+        & (length >= p.min_length)
+        & (width <= p.max_width)
+        & (thick >= p.min_thickness)
+        & (share <= p.high_share)
+        & (rough <= p.max_roughness)
+        & (n_rough >= p.min_ring_triples)
+        & (veg_share <= p.max_vegetation)
+    )
+    ok[0] = False
+    seg = np.empty_like(seg_o)
+    seg[order] = seg_o
+    remap = np.zeros(n + 1, np.int32)
+    remap[ok] = np.arange(1, int(ok.sum()) + 1)
+    instances = remap[seg]
+    mask = instances > 0
+    boxes = oriented_boxes(instances, xyz)
+    feats = dict(
+        points=cnt, bottom=hlo, top=hhi, top90=top90, length=length, width=width, thickness=thick, roughness=rough,
+        high_share=share, ring_triples=n_rough, vegetation=veg_share,
+    )  # fmt: skip
+    return SpinningCars(mask, instances, boxes, seg, feats, ok)
+
+
+def oriented_boxes(instances: np.ndarray, xyz: np.ndarray) -> list[dict]:
+    """One oriented box per instance id 1..n of ``instances`` (rows, cols) from ``xyz`` (rows,
+    cols, 3): centre xyz, size (length along the footprint's principal axis, width, height), yaw
+    of that axis (rad), point count."""
+    flat = instances.ravel()
+    members = np.flatnonzero(flat)
+    if len(members) == 0:
+        return []
+    pts_all = xyz.reshape(-1, 3)[members]
+    ids = flat[members]
+    order = np.argsort(ids, kind="stable")
+    cuts = np.flatnonzero(np.diff(ids[order])) + 1
+    boxes = []
+    for idx in np.split(order, cuts):  # one box per car (a handful per sweep)
+        pts = pts_all[idx]
+        c = pts[:, :2].mean(axis=0)
+        cov = np.cov((pts[:, :2] - c).T) if len(pts) > 2 else np.eye(2)
+        w, v = np.linalg.eigh(cov)
+        axis = v[:, np.argmax(w)]
+        yaw = float(np.arctan2(axis[1], axis[0]))
+        rot = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])
+        local = (pts[:, :2] - c) @ rot.T
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        centre = c + ((lo + hi) / 2) @ rot
+        boxes.append(
+            {
+                "center": [float(centre[0]), float(centre[1]), float((pts[:, 2].min() + pts[:, 2].max()) / 2)],
+                "size": [float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(np.ptp(pts[:, 2]))],
+                "yaw": yaw,
+                "points": len(pts),
+            }
+        )
+    return boxes
