@@ -38,12 +38,15 @@ def fold_reference(reference: np.ndarray, mode: str = "urban") -> np.ndarray:
 
 
 def score_map(
-    labels: np.ndarray, reference: np.ndarray, instance: np.ndarray | None = None, mode: str = "urban"
+    labels: np.ndarray, reference: np.ndarray, instance: np.ndarray | None = None, mode: str | None = None
 ) -> dict[str, Any]:
-    """Per-class precision / recall / F1 for paper 004's classes (forest mode: with trunk), the
-    confusion matrix, object counts (found / present) for vehicles and poles when instances are
-    known, and ``noise_share``: points labelled noise among the reference's non-noise points."""
+    """Per-class precision / recall / F1 for paper 004's classes (forest mode: with trunk; by
+    default forest when ``labels`` hold trunks, which only forest mode gives), the confusion
+    matrix, object counts (found / present) for vehicles and poles when instances are known,
+    and ``noise_share``: points labelled noise among the reference's non-noise points."""
     labels = np.asarray(labels)
+    if mode is None:
+        mode = "forest" if (labels == L.TRUNK).any() else "urban"
     if len(labels) != len(reference):
         raise ValueError(f"{len(labels)} labels for {len(reference)} reference codes")
     ref = fold_reference(reference, mode)

@@ -326,8 +326,12 @@ def _classify_finite(
             t["p"], t["seg"], scene, e.voxel, e.factor, e.min_similar)
             & (t["foliage"] if e.foliage_only else True)),
     ]  # fmt: skip
-    if cfg.mode == "forest":  # every slim pillar is a stem, taken before the facade test sees it
+    if cfg.mode == "forest":
+        # every slim pillar is a stem, taken before the facade test sees it; the canopy is
+        # everywhere, so Sec. 4.5's "distinctively higher than on average" has no contrast:
+        # foliage alone is vegetation
         steps = [("stems", L.TRUNK, lambda t: t["post"])] + [s for s in steps if s[0] not in ("posts", "stems")]
+        steps[-1] = ("vegetation", L.VEGETATION, lambda t: t["foliage"])
     for name, code, step in steps:
         if len(idx):
             hit = step(pt)
