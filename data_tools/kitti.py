@@ -36,8 +36,10 @@ def read_velodyne_bin(path: str | Path, allow_nonfinite: bool = False) -> np.nda
     if raw.size % 4:
         raise DataError(f"{path}: truncated: {path.stat().st_size} bytes is not a whole number of 16-byte points")
     pts = raw.reshape(-1, 4)
+    if allow_nonfinite:
+        return pts
     bad = ~np.isfinite(pts).all(axis=1)
-    if not allow_nonfinite and bad.any():
+    if bad.any():
         raise DataError(
             f"{path}: {int(bad.sum())} points with NaN or infinite values (first at index {int(np.argmax(bad))})"
         )

@@ -90,6 +90,47 @@ class OrganizeReport:
         }
 
 
+class OrganizeSummary:
+    """The organiser's reports over a run, for the metrics JSON (``"organize"`` key).
+
+    ``add(scan.meta.get("organize"))`` per frame (frames without a report, e.g. from the
+    simulator or an organised source, are counted as such); ``as_dict()`` gives
+    ``{"frames", "methods", "rings": {min, median, max}, "expected_rings", "cols",
+    "collisions_pct": {mean, max}, "empty_rows_max", "nonfinite_points", "warnings",
+    "warning_messages"}`` (the first 20 messages)."""
+
+    def __init__(self) -> None:
+        self.reports: list[dict[str, Any]] = []
+        self.unorganised = 0
+
+    def add(self, report: dict[str, Any] | None) -> None:
+        if report is None:
+            self.unorganised += 1
+        else:
+            self.reports.append(report)
+
+    def as_dict(self) -> dict[str, Any]:
+        r = self.reports
+        if not r:
+            return {"frames": 0, "frames_without_report": self.unorganised, "warnings": 0}
+        rings = np.array([x["rings"] for x in r])
+        coll = np.array([x["collisions_pct"] for x in r])
+        messages = [m for x in r for m in x["warnings"]]
+        return {
+            "frames": len(r),
+            "frames_without_report": self.unorganised,
+            "methods": sorted({x["method"] for x in r}),
+            "rings": {"min": int(rings.min()), "median": float(np.median(rings)), "max": int(rings.max())},
+            "expected_rings": r[-1]["expected_rings"],
+            "cols": r[-1]["cols"],
+            "collisions_pct": {"mean": float(coll.mean()), "max": float(coll.max())},
+            "empty_rows_max": int(max(x["empty_rows"] for x in r)),
+            "nonfinite_points": int(sum(x["nonfinite_points"] for x in r)),
+            "warnings": len(messages),
+            "warning_messages": messages[:20],
+        }
+
+
 # ----------------------------------------------------------------------------- numba kernels
 
 
@@ -114,14 +155,15 @@ def _atan2(y, x):
 
 
 @njit(cache=True, nogil=True)
-def _polar(xyz, offset, ok, rng, az, te, small=0.7853981633974483):
+def _polar(xyz, offset, ok, rng, az, te, cloud, small=0.7853981633974483):
     """Per point: has a return, range, azimuth (rad, (-pi, pi]) and the tangent of the beam
     elevation ``z / (rho - offset)``, ``offset`` being the horizontal distance of the beam
     origins from the sensor axis (Ouster: ``lidar_origin_to_beam_origin``; 0 for decoders
     that give points from one origin). Along the input order also: the share of azimuth
     steps between consecutive returns smaller than ``small`` and the signed sum of those
     steps (revolutions * 2 pi), which tell the point order. Writes into ``ok, rng, az, te``
-    (work arrays reused from sweep to sweep: fresh ones cost page faults)."""
+    (work arrays reused from sweep to sweep: fresh ones cost page faults) and copies the
+    points into ``cloud`` (float32, no-return rows zeroed)."""
     n = xyz.shape[0]
     prev = 0.0
     have = False
@@ -136,7 +178,14 @@ def _polar(xyz, offset, ok, rng, az, te, small=0.7853981633974483):
         r2 = rho2 + z * z
         good = math.isfinite(r2) and r2 > 0.0
         ok[i] = good
-        if not good:
+        if good:
+            cloud[i, 0] = x
+            cloud[i, 1] = y
+            cloud[i, 2] = z
+        else:
+            cloud[i, 0] = 0.0
+            cloud[i, 1] = 0.0
+            cloud[i, 2] = 0.0
             rng[i] = 0.0
             az[i] = 0.0
             te[i] = 0.0
@@ -663,6 +712,9 @@ class Organizer:
         Azimuth (rad) where a sweep starts, when the source's convention fixes it (KITTI: 0);
         otherwise the azimuth of the first point in time (or in order).
 
+    One instance per sequence and per thread: the beam table, column count, cut azimuth and
+    work arrays are kept from sweep to sweep.
+
     Columns run in firing order from the sweep's start: column ``c`` holds the azimuths
     ``start + direction * (c + phase_r +- 0.5) * 2 pi / cols``; without per-point times, column
     ``c`` is stamped ``frame_time + (c + 0.5) / cols * sweep_period``.
@@ -736,6 +788,8 @@ class Organizer:
         xyz = np.asarray(xyz)
         if xyz.ndim != 2 or xyz.shape[1] < 3:
             raise DataError(f"{source}: points must be an (N, 3) array, got shape {xyz.shape}")
+        if xyz.dtype.kind not in "fiu":
+            raise DataError(f"{source}: points of type {xyz.dtype} are not numeric")
         xyz = xyz[:, :3]
         n = len(xyz)
         for nm, arr in (
@@ -747,16 +801,16 @@ class Organizer:
         ):
             if arr is not None and np.shape(arr) != (n,):
                 raise DataError(f"{source}: {nm} has shape {np.shape(arr)} for {n} points")
-        cloud = np.array(xyz, dtype=np.float32, order="C")  # Scan.cloud (no-return rows zeroed later)
+        cloud = np.empty((n, 3), np.float32)  # Scan.cloud, filled by _polar (no-return rows zeroed)
         if self.beam_offset is None:
-            self.beam_offset = 0.0 if ring is not None else estimate_beam_offset(cloud)
+            self.beam_offset = 0.0 if ring is not None else estimate_beam_offset(xyz)
         ok, rng, az, te = (
             self._work("ok", n, np.bool_),
             self._work("rng", n, np.float32),
             self._work("az", n, np.float64),
             self._work("te", n, np.float64),
         )
-        self._order = _polar(cloud, self.beam_offset, ok, rng, az, te)
+        self._order = _polar(xyz, self.beam_offset, ok, rng, az, te, cloud)
         n_ok = int(ok.sum())
         if n_ok == 0:
             raise DataError(f"{source}: no point with a return ({n} points, all NaN/inf or at the origin)")
@@ -802,10 +856,11 @@ class Organizer:
         if g.ndim != 3 or g.shape[2] < 3 or g.shape[0] < 1 or g.shape[1] < 2:
             raise DataError(f"{source}: an organised cloud must be (H, W, 3), got shape {g.shape}")
         H, W = g.shape[:2]
-        flat = np.array(g[..., :3].reshape(-1, 3), dtype=np.float32, order="C")
-        n_all = len(flat)
+        src = g[..., :3].reshape(-1, 3)
+        n_all = len(src)
         ok, rng, az, te = (np.empty(n_all, bool), np.empty(n_all, np.float32), np.empty(n_all), np.empty(n_all))
-        _polar(flat, 0.0, ok, rng, az, te)
+        flat = np.empty((n_all, 3), np.float32)
+        _polar(src, 0.0, ok, rng, az, te, flat)
         if not ok.any():
             raise DataError(f"{source}: no point with a return in the {H} x {W} organised cloud")
         warnings: list[str] = []
@@ -1089,7 +1144,9 @@ class Organizer:
         )
         inten = None
         if intensity is not None:
-            src = np.ascontiguousarray(intensity, dtype=np.float32)
+            src = np.asarray(intensity)
+            if src.dtype.kind not in "fiub":
+                raise DataError(f"{source}: intensity of type {src.dtype} is not numeric")
             inten = _gather(rep, src, np.empty(rows * cols, np.float32)).reshape(rows, cols)
         t = None
         if times is not None:
@@ -1121,7 +1178,6 @@ class Organizer:
         ranges, slot_xyz = _fill_slots(rep, rng, cloud)
         point_slot = slot
         if report.nonfinite_points:
-            cloud[~ok] = 0.0
             lost = slot < 0
             if lost.any():
                 empty = np.flatnonzero(rep < 0)

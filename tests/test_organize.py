@@ -359,3 +359,19 @@ def test_real_sweeps_organise_plausibly(sensor):
             mapping[r_f][r_x] += 1
         agree = sum(max(v.values()) for v in mapping.values()) / len(xyz)
         assert agree >= 0.98
+
+
+def test_summary_for_the_metrics_json():
+    from data_tools.organize import OrganizeSummary
+
+    summary = OrganizeSummary()
+    org = Organizer(cols=500)
+    for seed in (0, 1):
+        xyz, *_ = spinning_sweep(rings=16, cols=720, seed=seed)
+        summary.add(org.scan(xyz, source=f"{seed}.bin").meta["organize"])
+    summary.add(None)
+    d = summary.as_dict()
+    assert (d["frames"], d["frames_without_report"], d["methods"]) == (2, 1, ["ring-major"])
+    assert d["rings"] == {"min": 16, "median": 16.0, "max": 16} and d["cols"] == 500
+    assert d["warnings"] == 2 and "0.bin" in d["warning_messages"][0]
+    assert d["collisions_pct"]["max"] > 12
