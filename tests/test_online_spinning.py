@@ -179,3 +179,20 @@ def test_kitti_labelled_frames_vehicle_precision_recall():
         ref = np.isin(raw, [10, 18, 20, 252, 258, 259])  # car, truck, other-vehicle (also moving)
         tp, fp, fn = tp + (pred & ref).sum(), fp + (pred & ~ref).sum(), fn + (~pred & ref).sum()
     assert tp / (tp + fp) >= 0.8 and tp / (tp + fn) >= 0.6
+
+
+def test_curb_face_along_the_columns():
+    """A 13 cm curb at y = 6 m (a sidewalk box beyond it): its face returns become curb, one
+    polyline follows it, and the road and sidewalk do not."""
+    sidewalk = ((-40.0, 6.0, -MOUNT - 1.0), (40.0, 11.0, -MOUNT + 0.13), 7)
+    scan, ident = sweep([sidewalk], cols=2048, noise=0.005)
+    det = OnlineDetector()
+    det.process(scan)
+    res = det.process(scan)
+    xyz = scan.slot_xyz()
+    curb = res.labels == L.CURB
+    face = (ident == 7) & (np.abs(xyz[..., 1] - 6.0) < 0.02)  # returns on the face itself
+    assert curb[face].mean() > 0.5
+    top = (ident == 7) & (xyz[..., 1] > 6.5)
+    assert curb[top].mean() < 0.01 and curb[(ident == 0) & scan.valid].mean() < 0.01
+    assert res.curb_polylines and all(np.abs(p[:, 1] - 6.0).max() < 0.3 for p in res.curb_polylines if len(p) > 3)

@@ -17,7 +17,12 @@ from prc_slam.online.car import CarParams, detect_cars
 from prc_slam.online.coarse import CoarseParams, CoarseResult, coarse_classify
 from prc_slam.online.curb import CurbParams, detect_curbs
 from prc_slam.online.ground import GroundDetector, GroundParams
-from prc_slam.online.spinning import SpinningCarParams, column_ground, detect_cars_spinning
+from prc_slam.online.spinning import (
+    SpinningCarParams,
+    column_ground,
+    detect_cars_spinning,
+    detect_curbs_spinning,
+)
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
 
 
@@ -67,6 +72,7 @@ class OnlineDetector:
         per_line_height: bool = False,
         spinning: SpinningCarParams | None = None,
         spinning_path: bool = True,
+        spinning_curbs: bool = True,
     ) -> None:
         self.coarse_params = coarse
         self.curb_params = curb or CurbParams()
@@ -75,6 +81,7 @@ class OnlineDetector:
         self.per_line_height = per_line_height
         self.spinning_params = spinning or SpinningCarParams()
         self.spinning_path = spinning_path
+        self.spinning_curbs = spinning_curbs
 
     @classmethod
     def paper(cls) -> OnlineDetector:
@@ -109,6 +116,10 @@ class OnlineDetector:
             if self.per_line_height:
                 heights = line_heights
         curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
+        if spinning and line_heights is not None and self.spinning_curbs:
+            face, lines_sp = detect_curbs_spinning(scan, coarse.lines, ground, line_heights)
+            curbs.mask |= face
+            curbs.polylines = curbs.polylines + lines_sp
         if spinning and line_heights is not None:
             cars = detect_cars_spinning(
                 scan, ground, coarse.lines, line_heights, coarse.codes == L.VEGETATION, self.spinning_params

@@ -529,3 +529,115 @@ def oriented_boxes(instances: np.ndarray, xyz: np.ndarray) -> list[dict]:
             }
         )
     return boxes
+
+
+@njit(cache=True, nogil=True)
+def _curb_faces(xyz, valid, lines, zg, steep, ground_tol, min_rise, t_curb, max_step):
+    """Curb-face returns along each column (see :func:`detect_curbs_spinning`)."""
+    face = np.zeros(xyz.shape[0], np.bool_)
+    for li in range(lines.shape[0]):
+        line = lines[li]
+        n = 0
+        pts = np.empty(line.shape[0], np.int64)
+        for j in range(line.shape[0]):
+            s = line[j]
+            if s < 0:
+                break
+            if valid[s]:
+                pts[n] = s
+                n += 1
+        j = 1
+        while j < n:
+            a, k = pts[j - 1], pts[j]
+            dz = xyz[k, 2] - xyz[a, 2]
+            rho_a = np.sqrt(xyz[a, 0] ** 2 + xyz[a, 1] ** 2)
+            rho_k = np.sqrt(xyz[k, 0] ** 2 + xyz[k, 1] ** 2)
+            # a steep step up from a return at the local ground level starts a possible face
+            if not (dz > 0 and dz > steep * abs(rho_k - rho_a) and abs(xyz[a, 2] - zg[a]) < ground_tol):
+                j += 1
+                continue
+            base = xyz[a, 2]
+            e = j
+            while e + 1 < n:  # the face goes on while the steps stay steep, short and low
+                b = pts[e + 1]
+                q = pts[e]
+                dzb = xyz[b, 2] - xyz[q, 2]
+                rho_b = np.sqrt(xyz[b, 0] ** 2 + xyz[b, 1] ** 2)
+                rho_q = np.sqrt(xyz[q, 0] ** 2 + xyz[q, 1] ** 2)
+                if dzb > 0 and dzb > steep * abs(rho_b - rho_q) and xyz[b, 2] - base <= t_curb + 0.05:
+                    e += 1
+                else:
+                    break
+            rise = xyz[pts[e], 2] - base
+            # the top of the face continues flat (the sidewalk) or the column ends
+            flat = True
+            if e + 1 < n:
+                b = pts[e + 1]
+                q = pts[e]
+                rho_b = np.sqrt(xyz[b, 0] ** 2 + xyz[b, 1] ** 2)
+                rho_q = np.sqrt(xyz[q, 0] ** 2 + xyz[q, 1] ** 2)
+                flat = abs(xyz[b, 2] - xyz[q, 2]) <= max_step + 0.2 * abs(rho_b - rho_q)
+            if min_rise <= rise <= t_curb and flat:
+                for q in range(j, e + 1):
+                    face[pts[q]] = True
+            j = e + 1
+    return face
+
+
+def detect_curbs_spinning(
+    scan: Scan,
+    lines: np.ndarray,
+    ground: np.ndarray,
+    line_height: np.ndarray,
+    t_curb: float = 0.2,
+    min_rise: float = 0.05,
+    min_lines: int = 3,
+    link: float = 0.5,
+    steep: float = 0.5,
+    ground_tol: float = 0.1,
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Curb faces of a spinning sensor's sweep: Sec. 6 with the column's own steps as "vertical".
+
+    A 64-beam column crosses a 10-15 cm curb face with one to three returns, too few for the
+    coarse classifier's CUSUM to turn vertical (Sec. 4), so Sec. 6 (a) finds no possible curb
+    point there. Here a face starts at a step up steeper than ``steep`` (rise over run, 0.5: 27 deg,
+    where the road's camber and noise stay below 10 deg) from a return within ``ground_tol`` of the
+    local ground level (:func:`local_ground`), goes on while the steps stay steep, and is a possible curb
+    when it rises between ``min_rise`` and ``t_curb`` (0.2 m, Sec. 6) and the column continues flat
+    on top (the sidewalk). Part (b): faces within ``link`` (0.5 m voxels, 26-connected) form
+    regions; a region seen on at least ``min_lines`` columns (Sec. 6: three scan lines) whose
+    height stays within ``t_curb`` is a curb. Returns the curb mask (rows, cols) and one polyline
+    per curb (the mean return of each column, in column order), sensor frame.
+    """
+    from prc_slam.online.curb import _polylines
+    from prc_slam.voxels import VoxelGrid
+
+    rows, cols = scan.shape
+    xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
+    valid = scan.valid.ravel()
+    zg = local_ground(lines, ground.ravel(), xyz[:, 2], line_height)
+    zg = np.where(np.isnan(zg), np.inf, zg)
+    face = _curb_faces(xyz, valid, lines, zg, steep, ground_tol, min_rise, t_curb, 0.05)
+    mask = np.zeros(rows * cols, bool)
+    members = np.flatnonzero(face)
+    if len(members) == 0:
+        return mask.reshape(rows, cols), []
+    grid = VoxelGrid.build(xyz[members], link)
+    grid_comp = grid.components()[grid.voxel]
+    col = members % cols
+    n = grid_comp.max() + 1
+    pairs = np.unique(grid_comp.astype(np.int64) * cols + col)
+    n_cols = np.bincount(pairs // cols, minlength=n)
+    z = xyz[members, 2]
+    zmin = np.full(n, np.inf)
+    zmax = np.full(n, -np.inf)
+    np.minimum.at(zmin, grid_comp, z)
+    np.maximum.at(zmax, grid_comp, z)
+    ok = (n_cols >= min_lines) & (zmax - zmin <= t_curb)
+    mask[members[ok[grid_comp]]] = True
+    mask = mask.reshape(rows, cols)
+    regions = np.zeros(rows * cols, np.int32)
+    regions[members] = grid_comp + 1
+    ok_r = np.r_[False, ok]
+    line_index = np.broadcast_to(np.arange(cols)[None, :], (rows, cols))
+    return mask, _polylines(regions.reshape(rows, cols), ok_r, line_index, xyz.reshape(rows, cols, 3))
