@@ -827,8 +827,7 @@ class Organizer:
         cols = self._columns(az, ok, row, rows, times, source)
         inv_step = cols / TWO_PI
         if self.phase is None or len(self.phase) != rows:
-            phase, strength = _row_phase(az, row, rows, a0, s, inv_step)
-            self.phase = np.where(strength > 0.3, phase, 0.5)
+            self.phase = self._row_phases(az, row, rows, a0, s, inv_step)
         rep = self._work("rep", rows * cols, np.int64)
         slot, rep, per_row, collisions, multi = _scatter(az, rng, row, a0, s, inv_step, self.phase, rows, cols, rep)
         report = self._check(method, rows, cols, per_row, collisions, n_ok, n - n_ok, source, warnings, multi)
@@ -1011,6 +1010,24 @@ class Organizer:
         return row, len(self.beam_te)
 
     @staticmethod
+    def _row_phases(az, row, rows, a0, s, inv_step):
+        """Every row's column phase (where its returns sit within a column, in columns),
+        unwrapped to within half a column of the sweep's common phase, so that the rows'
+        columns line up: a row at phase 0.999 and one at 0.001 are the same columns, not one
+        apart. Rows without a clear phase (firings drifting through the column) take the
+        common phase."""
+        phase, strength = _row_phase(az, row, rows, a0, s, inv_step)
+        w = strength * np.bincount(row[row >= 0], minlength=rows)[:rows]
+        if w.sum() > 0:
+            ref = float(np.angle(np.sum(w * np.exp(2j * np.pi * phase))) / (2.0 * np.pi))
+        else:
+            ref = 0.5
+        ref = ref - np.floor(ref)
+        rel = phase - ref
+        rel = rel - np.round(rel)  # [-0.5, 0.5] around the common phase
+        return np.where(strength > 0.3, ref + rel, ref)
+
+    @staticmethod
     def _cut_azimuth(az, lo, hi, s, step):
         """The sweep's cut azimuth: early among the ring starts (late starts are rings whose
         first returns are missing), half a step before it."""
@@ -1063,8 +1080,8 @@ class Organizer:
                 same = row[sub][1:] == row[sub][:-1]
                 d = d[same & (np.abs(d) < np.radians(10.0))]
                 s = 1 if d.sum() >= 0 else -1
-            elif self._order_direction is not None and method != "ring-field":
-                s = self._order_direction
+            elif self._order_direction is not None and method in ("ring-major", "column-major"):
+                s = self._order_direction  # the input order is the firing order
             self.direction = s
         if self.a0 is None:
             first = int(np.argmax(ok))

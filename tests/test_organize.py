@@ -375,3 +375,15 @@ def test_summary_for_the_metrics_json():
     assert d["rings"] == {"min": 16, "median": 16.0, "max": 16} and d["cols"] == 500
     assert d["warnings"] == 2 and "0.bin" in d["warning_messages"][0]
     assert d["collisions_pct"]["max"] > 12
+
+
+@pytest.mark.parametrize("az0", [0.0, 0.25, 0.5, -0.5])
+def test_rows_line_up_whatever_the_bin_phase(az0):
+    """Returns on the bin centres, the bin edges or between: every row's columns line up with
+    the other rows' (one shift for the whole sweep), in every order."""
+    xyz, beam, firing = spinning_sweep(rings=32, cols=1024, keep=0.8, seed=11, az0=az0 * 360 / 1024)
+    for order in (np.arange(len(xyz)), column_major(beam, firing), np.random.default_rng(2).permutation(len(xyz))):
+        scan = Organizer().scan(xyz[order])
+        col = scan.point_slot % scan.shape[1]
+        shifts = np.unique((col - firing[order]) % 1024)  # columns follow the order's firing direction
+        assert len(shifts) == 1, shifts
