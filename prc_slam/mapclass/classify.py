@@ -5,6 +5,13 @@ segmentation (Sec. 3.2, 5), ground (4.1), buildings (4.2), vehicles (4.3), posts
 vegetation (4.5); each step sees only what the earlier ones left. Codes as in DESIGN.md:
 outliers are ``noise``, points left at the end ``unclassified``, non-finite input points
 ``no_return`` (counted in :attr:`MapResult.nonfinite`).
+
+At any point density (issue 20): with ``density_relative`` (default) the Sec. 3.1 threshold and
+the voxel and cell sizes follow the cloud's own surface density
+(:mod:`prc_slam.mapclass.density`), so airborne tiles of 2-20 points/m^2 and terrestrial scans
+classify as mobile-mapping maps do; the paper's fixed values stay under :func:`paper_config`.
+A :class:`DensityWarning` says when more than ``density_warn_share`` of the cloud falls under
+the threshold. ``mode="forest"`` reports slim pillars as ``trunk`` and foliage as vegetation.
 """
 
 from __future__ import annotations
@@ -288,7 +295,7 @@ def _classify_finite(
     b, c = cfg.building, cfg.vehicle
     pt = {"p": p, "seg": seg, "vert": v, "foliage": foliage, "post": post}
     if b.roof_height > 0:  # roof seeds: high above the ground and not foliage
-        hag = height_above_ground(p, ground_pts, cell=max(1.0, 2 * scale.ground_cell), radius=8)
+        hag = height_above_ground(p, ground_pts, cell=max(2.5, 2 * scale.ground_cell), radius=3)
         pt["roof"] = (hag >= b.roof_height) & ~foliage & ~post
 
     def posts_not_stems(t: dict[str, np.ndarray]) -> np.ndarray:
