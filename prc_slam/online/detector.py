@@ -22,6 +22,7 @@ from prc_slam.online.spinning import (
     column_ground,
     detect_cars_spinning,
     detect_curbs_spinning,
+    local_ground,
 )
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
 
@@ -116,13 +117,16 @@ class OnlineDetector:
             if self.per_line_height:
                 heights = line_heights
         curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
-        if spinning and line_heights is not None and self.spinning_curbs:
-            face, lines_sp = detect_curbs_spinning(scan, coarse.lines, ground, line_heights)
+        zg = None
+        if spinning and line_heights is not None:  # each slot's ground: the last ground return below it
+            zg = local_ground(coarse.lines, ground.ravel(), scan.slot_xyz()[..., 2].ravel(), line_heights)
+        if zg is not None and self.spinning_curbs:
+            face, lines_sp = detect_curbs_spinning(scan, coarse.lines, ground, line_heights, zg=zg)
             curbs.mask |= face
             curbs.polylines = curbs.polylines + lines_sp
         if spinning and line_heights is not None:
             cars = detect_cars_spinning(
-                scan, ground, coarse.lines, line_heights, coarse.codes == L.VEGETATION, self.spinning_params
+                scan, ground, coarse.lines, line_heights, coarse.codes == L.VEGETATION, self.spinning_params, zg
             )
         else:
             cars = detect_cars(scan, coarse, heights, curbs.mask, self.car_params)

@@ -385,6 +385,21 @@ class SpinningCars:
     accepted: np.ndarray | None = None  # bool per segment
 
 
+@njit(cache=True, nogil=True)
+def _local_ground(lines, ground, z, line_height):
+    out = np.full(ground.shape[0], np.nan)
+    for li in range(lines.shape[0]):
+        h = line_height[li]
+        for j in range(lines.shape[1]):
+            s = lines[li, j]
+            if s < 0:
+                break
+            if ground[s]:
+                h = z[s]
+            out[s] = h
+    return out
+
+
 def local_ground(lines: np.ndarray, ground: np.ndarray, z: np.ndarray, line_height: np.ndarray) -> np.ndarray:
     """Ground height under every slot (step 1): the height of the last ground return before it in
     its scan line (a spinning sensor's column, lowest beam first), else the line's own height.
@@ -400,16 +415,12 @@ def local_ground(lines: np.ndarray, ground: np.ndarray, z: np.ndarray, line_heig
     -------
     float64, flat per slot (NaN for slots on no line)
     """
-    ok = lines >= 0
-    safe = np.where(ok, lines, 0)
-    g = ground[safe] & ok
-    pos = np.where(g, np.arange(lines.shape[1])[None, :], -1)
-    last = np.maximum.accumulate(pos, axis=1)
-    zl = z[safe]
-    height = np.where(last >= 0, np.take_along_axis(zl, np.maximum(last, 0), axis=1), line_height[:, None])
-    out = np.full(ground.shape, np.nan)
-    out[lines[ok]] = height[ok]
-    return out
+    return _local_ground(
+        np.ascontiguousarray(lines, dtype=np.int64),
+        np.ascontiguousarray(ground, dtype=np.bool_),
+        np.ascontiguousarray(z, dtype=np.float64),
+        np.ascontiguousarray(line_height, dtype=np.float64),
+    )
 
 
 def detect_cars_spinning(
@@ -419,9 +430,11 @@ def detect_cars_spinning(
     line_height: np.ndarray,
     vegetation: np.ndarray | None = None,
     params: SpinningCarParams | None = None,
+    zg: np.ndarray | None = None,
 ) -> SpinningCars:
     """Cars of one sweep of a spinning sensor (module docstring), given the ground mask, the scan
-    lines (columns, lowest beam first) and each line's ground height."""
+    lines (columns, lowest beam first), each line's ground height, optionally the coarse
+    classifier's vegetation mask and the :func:`local_ground` of every slot (computed if None)."""
     if not isinstance(scan.sensor, SpinningSensor):
         raise TypeError(
             f"{scan.source}: detect_cars_spinning needs a spinning sensor, got {type(scan.sensor).__name__}"
@@ -430,21 +443,29 @@ def detect_cars_spinning(
     sensor = scan.sensor
     vegetation = np.zeros(scan.shape, bool) if vegetation is None else vegetation
     rows, cols = scan.shape
-    xyz = scan.slot_xyz().astype(np.float64)
+    xyz = scan.slot_xyz()
     valid = scan.valid
-    zg = local_ground(lines, ground.ravel(), xyz[..., 2].ravel(), line_height).reshape(rows, cols)
+    if zg is None:
+        zg = local_ground(lines, ground.ravel(), xyz[..., 2].ravel(), line_height)
+    zg = zg.reshape(rows, cols)
     height = xyz[..., 2] - np.where(np.isnan(zg), np.inf, zg)
     order = np.argsort(sensor.altitude, kind="stable")  # rows by elevation, lowest first
-    alt = sensor.altitude[order]
-    o_xyz = np.ascontiguousarray(xyz[order])
-    o_valid = np.ascontiguousarray(valid[order])
-    o_h = np.ascontiguousarray(height[order])
-    o_ground = np.ascontiguousarray(ground[order])
-    cand = o_valid & ~o_ground & (o_h >= p.min_above_ground) & (o_h <= p.max_height)
+    alt = np.ascontiguousarray(sensor.altitude[order])
+    # views when the rows are already in (reversed) elevation order, as most readers give them
+    if (order == np.arange(rows)).all():
+        by_elevation = slice(None)
+    elif (order == np.arange(rows)[::-1]).all():
+        by_elevation = slice(None, None, -1)
+    else:
+        by_elevation = order
+    o_xyz = xyz[by_elevation]
+    o_valid = valid[by_elevation]
+    o_h = height[by_elevation]
+    cand = o_valid & ~ground[by_elevation] & (o_h >= p.min_above_ground) & (o_h <= p.max_height)
     high = o_valid & (o_h > p.max_height)
-    rng = np.ascontiguousarray(scan.ranges[order].astype(np.float64))
+    rng = scan.ranges[by_elevation]
     seg_o, n, high_touch, tops = segment_candidates(
-        cand, o_valid, high, o_xyz, rng, 2.0 * np.pi / cols, np.ascontiguousarray(alt),
+        cand, o_valid, high, o_xyz, rng, 2.0 * np.pi / cols, alt,
         p.min_gate, p.gate_factor, p.max_gate, p.see_through, int(p.diagonal),
     )  # fmt: skip
     cnt, hlo, hhi, top90, length, width, thick, rough, n_rough = segment_features(
@@ -465,7 +486,7 @@ def detect_cars_spinning(
         top_at[ids[by][last]] = sel[by][last]
     top_gap = rng.ravel()[top_at] * np.abs(gaps[top_at // cols])
     cnt_all = np.bincount(seg_o.ravel(), minlength=n + 1)
-    veg = np.bincount(seg_o.ravel(), weights=np.ascontiguousarray(vegetation[order]).ravel(), minlength=n + 1)
+    veg = np.bincount(seg_o.ravel(), weights=vegetation[by_elevation].ravel(), minlength=n + 1)
     veg_share = veg / np.maximum(cnt_all, 1)
     ok = (
         (cnt >= p.min_points)
@@ -595,6 +616,7 @@ def detect_curbs_spinning(
     link: float = 0.5,
     steep: float = 0.5,
     ground_tol: float = 0.1,
+    zg: np.ndarray | None = None,
 ) -> tuple[np.ndarray, list[np.ndarray]]:
     """Curb faces of a spinning sensor's sweep: Sec. 6 with the column's own steps as "vertical".
 
@@ -615,8 +637,9 @@ def detect_curbs_spinning(
     rows, cols = scan.shape
     xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
     valid = scan.valid.ravel()
-    zg = local_ground(lines, ground.ravel(), xyz[:, 2], line_height)
-    zg = np.where(np.isnan(zg), np.inf, zg)
+    if zg is None:
+        zg = local_ground(lines, ground.ravel(), xyz[:, 2], line_height)
+    zg = np.where(np.isnan(zg.ravel()), np.inf, zg.ravel())
     face = _curb_faces(xyz, valid, lines, zg, steep, ground_tol, min_rise, t_curb, 0.05)
     mask = np.zeros(rows * cols, bool)
     members = np.flatnonzero(face)
