@@ -807,8 +807,8 @@ class Organizer:
         ok, rng, az, te = (
             self._work("ok", n, np.bool_),
             self._work("rng", n, np.float32),
-            self._work("az", n, np.float64),
-            self._work("te", n, np.float64),
+            self._work("az", n, np.float32),
+            self._work("te", n, np.float32),
         )
         self._order = _polar(xyz, self.beam_offset, ok, rng, az, te, cloud)
         n_ok = int(ok.sum())
