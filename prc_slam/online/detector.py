@@ -3,6 +3,10 @@
 Labels per slot, combined as Sec. 8 says: the coarse classes (68 horizontal, 69 vertical,
 5 vegetation), overwritten by ground (2), curb (66) and vehicle (65); car points behind a
 verified curb keep their coarse class.
+
+Spinning multi-beam sensors take the path of :mod:`prc_slam.online.spinning` for cars (and, beside
+Sec. 6, for curb faces; the column ground where columns are too short for Sec. 5 (a));
+``OnlineDetector.paper()`` keeps the paper's per-column car algorithm on every sensor.
 """
 
 from __future__ import annotations
