@@ -757,6 +757,7 @@ class Organizer:
         self._buffers: dict[str, np.ndarray] = {}
         self.beam_offset: float | None = None
         self.clean_rings: bool | None = None
+        self._concentration = 1.0
         self._cut: float | None = None
         self.frames = 0
         self.warnings_total = 0
@@ -1065,6 +1066,16 @@ class Organizer:
                     "points carry no ring field and no consistent order"
                 )
             self.beam_te = beam_te
+            self._concentration = conc
+        else:
+            # does this sweep still fit the sequence's beam table? (checked on a sample)
+            sub = slice(None, None, max(1, len(te) // 20000))
+            conc = beam_concentration(te[sub][ok[sub]], self.beam_te)
+            if conc < min(MIN_BEAM_CONCENTRATION, self._concentration - 0.15):
+                warnings.append(
+                    f"{source}: only {100 * conc:.0f}% of the points lie near the beams found on the first sweep "
+                    f"({100 * self._concentration:.0f}% there): the beam table does not fit this sweep"
+                )
         row = _nearest_beam(te, ok, _beam_bounds(self.beam_te), self._work("row", len(te), np.int64))
         return row, len(self.beam_te)
 

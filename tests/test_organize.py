@@ -387,3 +387,15 @@ def test_rows_line_up_whatever_the_bin_phase(az0):
         col = scan.point_slot % scan.shape[1]
         shifts = np.unique((col - firing[order]) % 1024)  # columns follow the order's firing direction
         assert len(shifts) == 1, shifts
+
+
+def test_a_sweep_that_does_not_fit_the_beam_table_is_reported(caplog):
+    """Beams found on the first sweep; a later sweep from a sensor with other beam angles."""
+    org = Organizer()
+    xyz, *_ = spinning_sweep(rings=16, cols=720, seed=12, del_=2.0)
+    org.scan(xyz[np.random.default_rng(0).permutation(len(xyz))])
+    other, *_ = spinning_sweep(rings=16, cols=720, seed=13, del_=2.0, el0=-14.0)  # half a beam gap off
+    with caplog.at_level(logging.WARNING, logger="prc_slam.organize"):
+        scan = org.scan(other[np.random.default_rng(1).permutation(len(other))], source="later.bin")
+    assert any("beam table does not fit" in w for w in scan.meta["organize"]["warnings"])
+    assert "later.bin" in caplog.text
