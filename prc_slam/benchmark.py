@@ -223,7 +223,7 @@ def als_tile(min_points: int = 5_000_000, density: float = 20.0, seed: int = 0) 
     return np.concatenate([cloud.points + k * shift for k in range(copies)])
 
 
-def bench_mapclass_als(min_points: int = 5_000_000, repeat: int = 2) -> dict[str, Any]:
+def bench_mapclass_als(min_points: int = 5_000_000, repeat: int = 1) -> dict[str, Any]:
     """Map classification on a >= 5 M-point simulated ALS tile (20 points/m^2), in one piece:
     ``als_points_per_s`` (issue 20: >= 2 M points/s); compare with ``points_per_s`` of the
     mobile-mapping map measured in the same run."""
