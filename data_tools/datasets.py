@@ -98,7 +98,13 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
     if fmt == "kitti":
         from data_tools.kitti import KittiSequence
 
-        return KittiSequence(path)
+        rows, cols = options.get("rows"), options.get("cols")
+        return KittiSequence(
+            path,
+            rows=None if rows is None else int(str(rows)),
+            cols=None if cols is None else int(str(cols)),
+            method=str(options.get("organize_method") or "auto"),
+        )
     if fmt == "ouster":
         from data_tools.ouster import OusterSequence
 
