@@ -243,3 +243,35 @@ def test_distributed_tiles_identical_to_serial(client, sims, tmp_path):
     assert labels is store and len(done) > 3 and done[-1][0] == done[-1][1]  # several tiles, all done
     np.testing.assert_array_equal(np.asarray(store), serial)
     assert (serial[::997] == 0).all() and len(np.unique(serial)) > 2 and seconds
+
+
+# ---- the command, on a running scheduler ----------------------------------------------------
+
+
+def test_cli_batch_on_a_scheduler(client, sims, tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from prc_slam.cli import app
+
+    runner = CliRunner()
+    address = client.scheduler.address
+    plan = _plan(tmp_path, {"job": {"kind": "classify", "max_frames": 1}, "inputs": [str(sims[0]), "nothing_here"]})
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["batch", str(plan), "--out", str(out), "--scheduler", address, "--workers", "3"])
+    assert res.exit_code == 1, res.output  # one input failed: recorded, the other done
+    assert "1 of 2 inputs done" in res.output and "failed: nothing_here" in res.output
+    assert "--workers 3 ignored" in res.output and "dask dashboard" in res.output
+    assert (out / sims[0].name / "labels" / "000000.label").is_file()
+    assert json.loads((out / "summary.json").read_text())["failed"] == 1
+    # DASK_SCHEDULER_ADDRESS instead of --scheduler; the earlier results are kept unless --overwrite
+    monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", address)
+    res = runner.invoke(app, ["batch", str(plan), "--out", str(out)])
+    last = res.output.strip().splitlines()[-1]
+    assert (
+        res.exit_code == 2 and last.startswith("error: --out: ") and last.endswith("use --overwrite or another --out")
+    )
+    assert "dask:" not in res.output  # refused before any cluster work
+    res = runner.invoke(app, ["batch", str(plan), "--out", str(out), "--overwrite"])
+    assert res.exit_code == 1 and f"scheduler {address}" in res.output
+    res = runner.invoke(app, ["batch", str(tmp_path / "none.yaml")])
+    assert res.exit_code == 2 and "none.yaml: cannot read the plan" in res.output

@@ -29,13 +29,14 @@ def batch(
     """Run a plan's job on every input, one Dask task per input (a local cluster of worker
     processes by default; --scheduler for a real cluster); writes OUT/<input-name>/ as the
     single-input command would, plus OUT/summary.md, summary.json and summary.png."""
-    from prc_slam.jobs.batch import load_plan, resolve_tasks, run_batch
+    from prc_slam.jobs.batch import load_plan, prepare_out, resolve_tasks, run_batch
     from prc_slam.jobs.distributed import open_client
     from prc_slam.jobs.progress import progress
 
     spec = load_plan(plan)
     tasks = resolve_tasks(spec, plan.resolve().parent)
     say(f"{len(tasks)} inputs: " + ", ".join(f"{t.name} ({t.kind})" for t in tasks))
+    prepare_out(out, tasks, overwrite)  # refuse (or clear) earlier results before starting a cluster
     with open_client(scheduler, workers, note=say) as client, progress() as reporter:
         summary = run_batch(tasks, out, client, reporter=reporter, note=say, retries=retries, overwrite=overwrite)
     ok = summary["inputs"] - summary["failed"]
