@@ -300,6 +300,9 @@ def test_cli_simulate_als_writes_a_laz_mapclass_reads_it(tmp_path):
     res = runner.invoke(app, ["mapclass", str(out), "--out", str(tmp_path / "mc")])
     assert res.exit_code == 0, res.output
     assert "ground" in res.output and "density threshold" not in res.output
+    res = runner.invoke(app, ["mapclass", str(out), "--mode", "forest", "--out", str(tmp_path / "mcf")])
+    assert res.exit_code == 0, res.output
+    assert "vegetation" in res.output
     with pytest.warns(DensityWarning, match="the paper's fixed 100 points/m\\^3 is a mobile-mapping figure"):
         res = runner.invoke(app, ["mapclass", str(out), "--paper", "--out", str(tmp_path / "mc2")])
     assert res.exit_code == 0, res.output

@@ -34,6 +34,11 @@ def register(app: typer.Typer) -> None:
     app.command()(mapclass)
 
 
+class MapMode(str, Enum):
+    urban = "urban"
+    forest = "forest"
+
+
 class Normals(str, Enum):
     voxels = "voxels"
     points = "points"
@@ -63,6 +68,7 @@ def mapclass(
     config: Path | None = typer.Option(None, help="YAML config (its mapclass section)"),
     normals: Normals | None = typer.Option(None, help="normals/segmentation per voxel or per point (k-NN)"),
     paper: bool = typer.Option(False, "--paper", help="the paper's steps only (our additions off)"),
+    mode: MapMode | None = typer.Option(None, help="forest: slim pillars are stems (trunk), foliage is vegetation"),
     tile: float | None = typer.Option(
         None, min=0.0, help="tile side (m); 0: one piece; default: tiles above 12 M points"
     ),
@@ -94,6 +100,8 @@ def mapclass(
         cfg.mapclass = paper_config().model_copy(update={"normals": cfg.mapclass.normals})
     if normals is not None:
         cfg.mapclass.normals = normals.value
+    if mode is not None:
+        cfg.mapclass.mode = mode.value
     viewer = Viewer(rrd, connect, serve_web, 1, map_voxel=map_voxel)
     with progress() as reporter:
         metrics = mapclass_job(
