@@ -196,3 +196,23 @@ def test_curb_face_along_the_columns():
     top = (ident == 7) & (xyz[..., 1] > 6.5)
     assert curb[top].mean() < 0.01 and curb[(ident == 0) & scan.valid].mean() < 0.01
     assert res.curb_polylines and all(np.abs(p[:, 1] - 6.0).max() < 0.3 for p in res.curb_polylines if len(p) > 3)
+
+
+def test_labels_follow_the_beams_not_the_row_order():
+    """Readers may give the rings in any order: shuffling the rows (with their elevations) shuffles
+    the labels and changes nothing else."""
+    scan, ident = sweep(car_boxes(6.0, 4.0) + car_boxes(-12.0, 3.0, k=2), cols=900)
+    perm = np.random.default_rng(3).permutation(scan.shape[0])
+    model = scan.sensor
+    shuffled = Scan(scan.ranges[perm], SpinningSensor.create(model.altitude[perm], model.cols))
+    a, b = OnlineDetector(), OnlineDetector()
+    a.process(scan), b.process(shuffled)
+    la, lb = a.process(scan).labels, b.process(shuffled).labels
+    np.testing.assert_array_equal(la[perm], lb)
+    assert (la[ident == 1] == L.VEHICLE).mean() > 0.8
+
+
+def test_an_empty_sweep_labels_nothing():
+    model = sensor(16, 360)
+    res = OnlineDetector().process(Scan(np.zeros((16, 360), np.float32), model))
+    assert (res.labels == L.NO_RETURN).all() and res.car_boxes == [] and res.curb_polylines == []

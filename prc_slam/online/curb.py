@@ -132,7 +132,14 @@ def detect_curbs(
     possible.ravel()[pc] = True
     vertical = coarse.codes == 69
     wrap = isinstance(scan.sensor, SpinningSensor)
-    regions, n = prc_kernels.connected_components_within(vertical, xyz.astype(np.float64), p.max_gap, wrap)
+    # region growing over range-image neighbours: a spinning sensor's rows in elevation order, so
+    # that neighbouring rows are neighbouring beams whatever order the reader gave them in
+    order = np.argsort(scan.sensor.altitude, kind="stable") if wrap else np.arange(scan.shape[0])
+    regions_o, n = prc_kernels.connected_components_within(
+        np.ascontiguousarray(vertical[order]), np.ascontiguousarray(xyz[order], dtype=np.float64), p.max_gap, wrap
+    )
+    regions = np.empty_like(regions_o)
+    regions[order] = regions_o
     if n == 0 or len(pc) == 0:
         return CurbResult(mask, [], possible)
     # region statistics, vectorised over the labelled slots
