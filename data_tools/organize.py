@@ -802,6 +802,10 @@ class Organizer:
         ):
             if arr is not None and np.shape(arr) != (n,):
                 raise DataError(f"{source}: {nm} has shape {np.shape(arr)} for {n} points")
+        warnings: list[str] = []
+        if ring is not None and self.method == "auto" and n > 1000 and (np.asarray(ring) == ring[0]).all():
+            warnings.append(f"{source}: the ring field holds one value ({ring[0]}) for every point; ignored")
+            ring = None
         cloud = np.empty((n, 3), np.float32)  # Scan.cloud, filled by _polar (no-return rows zeroed)
         if self.beam_offset is None:
             self.beam_offset = 0.0 if ring is not None else estimate_beam_offset(xyz)
@@ -815,7 +819,6 @@ class Organizer:
         n_ok = int(ok.sum())
         if n_ok == 0:
             raise DataError(f"{source}: no point with a return ({n} points, all NaN/inf or at the origin)")
-        warnings: list[str] = []
         if times is not None:
             times = np.asarray(times, dtype=np.float64)
             if not np.isfinite(times[ok]).all():

@@ -399,3 +399,13 @@ def test_a_sweep_that_does_not_fit_the_beam_table_is_reported(caplog):
         scan = org.scan(other[np.random.default_rng(1).permutation(len(other))], source="later.bin")
     assert any("beam table does not fit" in w for w in scan.meta["organize"]["warnings"])
     assert "later.bin" in caplog.text
+
+
+def test_a_ring_field_of_one_value_is_ignored_with_a_warning():
+    """Drivers that leave the ring field at 0: the sweep is organised from its order instead."""
+    xyz, beam, firing = spinning_sweep(rings=16, cols=720, seed=14)
+    scan = Organizer().scan(xyz, ring=np.zeros(len(xyz), np.uint16), source="zero.pcd")
+    rep = scan.meta["organize"]
+    assert rep["method"] == "ring-major" and rep["rings"] == 16
+    assert any("ring field holds one value" in w for w in rep["warnings"])
+    assert slot_agreement(scan, beam, firing) == 1.0
