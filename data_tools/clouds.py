@@ -120,3 +120,24 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
         xyz = _check(path, _open3d_points(path))
     for i in range(0, len(xyz), chunk):
         yield np.asarray(xyz[i : i + chunk], dtype=np.float64)
+
+
+def cloud_classes(path: str | Path) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """A LAS/LAZ file's own classes (``classification``, and the ``instance`` dimension when
+    present), to score a map against; None for other formats and for files whose classes are
+    only 0 (never classified) and 1 (unclassified)."""
+    path = Path(path)
+    if path.suffix.lower() not in (".las", ".laz"):
+        return None
+    import laspy
+
+    laz_backend(path)
+    try:
+        las = laspy.read(path)
+    except (laspy.LaspyException, ValueError, OSError) as exc:
+        raise DataError(f"{path}: not a readable LAS file ({exc})") from exc
+    codes = np.asarray(las.classification, np.uint8)
+    if not np.isin(codes, (0, 1), invert=True).any():
+        return None
+    inst = np.asarray(las["instance"], np.uint32) if "instance" in las.point_format.dimension_names else None
+    return codes, inst

@@ -73,6 +73,12 @@ def mapclass(
         None, min=0.0, help="tile side (m); 0: one piece; default: tiles above 12 M points"
     ),
     margin: float = typer.Option(6.0, min=0.0, help="context around each tile (m)"),
+    laz: bool = typer.Option(False, "--laz", help="write the combined and per-class clouds as LAZ"),
+    reference: bool | None = typer.Option(
+        None,
+        "--reference/--no-reference",
+        help="score a LAS/LAZ file against its own classes (default: if it has them)",
+    ),
     topic: str | None = TOPIC_OPT,
     meta: Path | None = META_OPT,
     model: str | None = MODEL_OPT,
@@ -106,11 +112,12 @@ def mapclass(
     with progress() as reporter:
         metrics = mapclass_job(
             input, cfg, out, tile=tile, margin=margin, fmt=fmt, max_frames=max_frames, every=every, poses=poses,
-            viewer=viewer, reporter=reporter, note=say, **input_options(topic, meta, model, rows, cols),
+            viewer=viewer, reporter=reporter, note=say, laz=laz, reference=reference,
+            **input_options(topic, meta, model, rows, cols),
         )  # fmt: skip
     print_mapclass(metrics, f"map classification of {input}")
-    written = [out / "map_classified.las"]
+    written = [out / ("map_classified.laz" if laz else "map_classified.las")]
     if json_path is not None:
         written += write_json(json_path, metrics, cfg)
     wrote(written)
-    console.print(f"one LAS per class in {out}", highlight=False)
+    console.print(f"one {'LAZ' if laz else 'LAS'} file per class in {out}", highlight=False)

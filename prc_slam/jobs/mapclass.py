@@ -3,7 +3,9 @@ sequence accumulated at its poses, with per-class LAS files, scores and the map 
 
 from __future__ import annotations
 
+import logging
 import tempfile
+import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -13,6 +15,8 @@ import numpy as np
 from prc_slam.config import Config
 from prc_slam.jobs.common import Viewer
 from prc_slam.jobs.progress import Reporter
+
+log = logging.getLogger("prc_slam.mapclass")
 
 
 def map_from_dataset(
@@ -64,10 +68,13 @@ def classify_map(
     prc=None,
     viewer: Viewer | None = None,
     reporter: Reporter | None = None,
+    laz: bool = False,
 ) -> dict[str, Any]:
-    """Classify, write the per-class LAS files, score; returns the metrics. Tiled runs keep the
-    labels in a memory-mapped scratch file (one byte per point), so the map never has to fit."""
+    """Classify, write the per-class LAS (``laz``: LAZ) files, score; returns the metrics. Tiled
+    runs keep the labels in a memory-mapped scratch file (one byte per point), so the map never
+    has to fit. The density messages (Sec. 3.1 threshold) are logged as warnings."""
     from data_tools.writers import ClassSplitWriter
+    from prc_slam.mapclass.classify import DensityWarning
     from prc_slam.mapclass_run import UNTILED_MAX_POINTS, prc_agreement, run_mapclass, score_map
 
     out.mkdir(parents=True, exist_ok=True)
@@ -81,11 +88,15 @@ def classify_map(
 
     with tempfile.TemporaryDirectory(dir=out) as scratch:
         store = np.memmap(Path(scratch) / "labels.u8", np.uint8, "w+", shape=(max(n_points, 1),)) if tiled else None
-        labels, metrics = run_mapclass(
-            points_source, n_points, cfg.mapclass, tile, margin,
-            labels_out=None if store is None else store[:n_points], progress=progress,
-        )  # fmt: skip
-        with ClassSplitWriter(out) as writer:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DensityWarning)  # logged below, once
+            labels, metrics = run_mapclass(
+                points_source, n_points, cfg.mapclass, tile, margin,
+                labels_out=None if store is None else store[:n_points], progress=progress,
+            )  # fmt: skip
+        for message in metrics.get("messages", []):
+            log.warning(message)
+        with ClassSplitWriter(out, combined="map_classified.laz" if laz else "map_classified.las") as writer:
             start = 0
             for part, chunk in enumerate(points_source()):
                 writer.write(chunk, labels[start : start + len(chunk)])
@@ -116,18 +127,30 @@ def mapclass_job(
     viewer: Viewer | None = None,
     reporter: Reporter | None = None,
     note: Callable[[str], None] | None = None,
+    laz: bool = False,
+    reference: bool | None = None,
     **open_options: Any,
 ) -> dict[str, Any]:
-    """Classify a cloud file, or a sequence accumulated at its poses (ground truth or ``poses``)."""
-    from data_tools.clouds import cloud_chunks, cloud_size, is_cloud_file
+    """Classify a cloud file, or a sequence accumulated at its poses (ground truth or ``poses``).
+
+    A LAS/LAZ file that carries classes of its own (beyond 0 and 1) is scored against them
+    (``reference=None``: when it has them; True: required; False: never)."""
+    from data_tools.clouds import cloud_chunks, cloud_classes, cloud_size, is_cloud_file
     from prc_slam.jobs.common import open_input
     from prc_slam.mapclass.tiles import array_chunks
 
     viewer = viewer or Viewer()
     if is_cloud_file(input):
+        own = None if reference is False else cloud_classes(input)
+        if reference and own is None:
+            raise ValueError(f"--reference: {input} carries no classes to score against")
+        ref, inst = own if own is not None else (None, None)
         metrics = classify_map(
-            lambda: cloud_chunks(input), cloud_size(input), cfg, out, tile, margin, viewer=viewer, reporter=reporter
-        )
+            lambda: cloud_chunks(input), cloud_size(input), cfg, out, tile, margin, ref, inst, viewer=viewer,
+            reporter=reporter, laz=laz,
+        )  # fmt: skip
+        if own is not None and note is not None:
+            note(f"scored against the classes stored in {input}")
     else:
         dataset, n = open_input(input, fmt, max_frames, **open_options)
         cloud = map_from_dataset(dataset, n, every, poses)
@@ -136,6 +159,7 @@ def mapclass_job(
         metrics = classify_map(
             lambda: array_chunks(cloud.points), len(cloud), cfg, out, tile, margin,
             cloud.attributes.get("reference"), cloud.attributes.get("instance"), viewer=viewer, reporter=reporter,
+            laz=laz,
         )  # fmt: skip
     viewer.close()
     metrics["input"] = str(input)
