@@ -456,7 +456,7 @@ def run_task(
     scratch.mkdir(parents=True)
     row: dict[str, Any] = {"name": task.name, "input": task.input, "job": task.kind, "batch_id": batch_id}
     row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         row.update(run_job(task, scratch))
         row["status"] = "ok"
@@ -468,6 +468,7 @@ def run_task(
         shutil.rmtree(scratch, ignore_errors=True)
         raise
     row["seconds"] = time.perf_counter() - t0
+    row["cpu_seconds"] = time.process_time() - c0  # all threads of the worker process
     if row.get("points_per_s") is None and row.get("points") and row["seconds"] > 0:
         row["points_per_s"] = row["points"] / row["seconds"]
     write_text_atomic(scratch / ROW_FILE, json.dumps(row, indent=2) + "\n")
