@@ -159,10 +159,10 @@ def bench_online(frames: int = 10, profiler_frames: int = 4) -> dict[str, Any]:
     from prc_slam.online import OnlineDetector
     from prc_slam.scan import Scan
 
-    def run(sensor: str, n: int) -> tuple[float, float]:
+    def run(sensor: str, n: int, paper: bool = False) -> tuple[float, float]:
         sim = Simulator(SimConfig(scene="urban", sensor=sensor, frames=n + 1))
         scans = [Scan(sim.frame(i).ranges, sim.sensor.model) for i in range(n + 1)]
-        det = OnlineDetector()
+        det = OnlineDetector.paper() if paper else OnlineDetector()
         det.process(scans[0])  # compile, and a ground height to start from
         t0 = time.perf_counter()
         for scan in scans[1:]:
@@ -171,10 +171,12 @@ def bench_online(frames: int = 10, profiler_frames: int = 4) -> dict[str, Any]:
         return float(np.mean([s.n_points for s in scans[1:]])) / sec, sec
 
     rate, sec = run("hdl64", frames)
+    paper_rate, _ = run("hdl64", frames, paper=True)  # same sweeps, same process: a baseline for a busy machine
     profiler_rate, profiler_sec = run("profiler-urban", profiler_frames)
     return {
         "points_per_s": rate,
         "ms_per_hdl64_frame": sec * 1e3,
+        "paper_points_per_s": paper_rate,
         "profiler_points_per_s": profiler_rate,
         "ms_per_profiler_block": profiler_sec * 1e3,
     }
