@@ -275,3 +275,28 @@ def test_cli_batch_on_a_scheduler(client, sims, tmp_path, monkeypatch):
     assert res.exit_code == 1 and f"scheduler {address}" in res.output
     res = runner.invoke(app, ["batch", str(tmp_path / "none.yaml")])
     assert res.exit_code == 2 and "none.yaml: cannot read the plan" in res.output
+
+
+# ---- exactly once, without a cluster --------------------------------------------------------
+
+
+def test_second_attempt_returns_the_published_result(sims, tmp_path):
+    from prc_slam.jobs.batch import run_task
+
+    out = tmp_path / "out"
+    (out / PARTIAL).mkdir(parents=True)
+    (out / PARTIAL / "b1.batch").write_text("b1\n")
+    task = Task(name="d", input=str(sims[0]), job={"kind": "classify", "max_frames": 1})
+    first = run_task(task, str(out), None, "b1")
+    label = out / "d" / "labels" / "000000.label"
+    stamp = label.stat().st_mtime_ns
+    again = run_task(task, str(out), None, "b1")  # e.g. the worker died after publishing
+    assert first["status"] == "ok" and again == first and label.stat().st_mtime_ns == stamp
+    assert [p.name for p in (out / PARTIAL).iterdir()] == ["b1.batch"]  # no scratch left, nothing duplicated
+    (out / PARTIAL / "b2.batch").write_text("b2\n")
+    with pytest.raises(RuntimeError, match="another batch"):  # a stale result is never taken for this batch's
+        run_task(task, str(out), None, "b2")
+    # an OUT this worker does not see: refused, nothing written on the worker's disk
+    row = run_task(task, str(tmp_path / "elsewhere"), None, "b3")
+    assert row["status"] == "failed" and "not on a file system" in row["error"]
+    assert not (tmp_path / "elsewhere").exists()

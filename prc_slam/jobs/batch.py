@@ -332,7 +332,7 @@ def run_job(task: Task, out: Path) -> dict[str, Any]:
     job = JOB_ADAPTER.validate_python(task.job)
     source = Path(task.input)
     if not source.exists():
-        raise FileNotFoundError(f"{source}: no such file or directory")
+        raise FileNotFoundError(f"{source}: no such file or directory (on worker host {socket.gethostname()})")
     out.mkdir(parents=True, exist_ok=True)
     row: dict[str, Any] = {}
     if job.kind in ("classify", "detect"):
@@ -450,11 +450,17 @@ def run_task(
         hook(task.name)
     root = Path(out_root)
     final = root / task.name
+    row: dict[str, Any] = {"name": task.name, "input": task.input, "job": task.kind, "batch_id": batch_id}
+    if batch_id and not (root / PARTIAL / f"{batch_id}.batch").is_file():
+        # never write results to a worker's own disk where the client will not find them
+        row.update(
+            status="failed", error=f"--out: {root} is not on a file system worker host {socket.gethostname()} sees"
+        )
+        return row
     if (final / ROW_FILE).is_file():  # an earlier attempt published it
         return _published(final, batch_id)
     scratch = root / PARTIAL / f"{task.name}.{uuid.uuid4().hex[:12]}"
     scratch.mkdir(parents=True)
-    row: dict[str, Any] = {"name": task.name, "input": task.input, "job": task.kind, "batch_id": batch_id}
     row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     t0, c0 = time.perf_counter(), time.process_time()
     try:
@@ -528,6 +534,8 @@ def run_batch(
     out = Path(out).resolve()
     prepare_out(out, tasks, overwrite)
     batch_id = uuid.uuid4().hex
+    (out / PARTIAL).mkdir(exist_ok=True)
+    (out / PARTIAL / f"{batch_id}.batch").write_text(f"{batch_id}\n")  # tasks check they see OUT
     t0 = time.perf_counter()
     futures = {
         client.submit(
