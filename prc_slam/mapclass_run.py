@@ -74,6 +74,7 @@ def run_mapclass(
     margin: float = 6.0,
     labels_out: np.ndarray | None = None,
     progress: Callable[[int, int], None] | None = None,
+    tiler: Callable[..., Any] | None = None,
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """Classify a cloud given as chunks, in one piece or tile by tile.
 
@@ -85,6 +86,9 @@ def run_mapclass(
         Its size (decides tiling when ``tile`` is None).
     tile : float, optional
         Tile side (m); 0 forces one piece; None tiles at 40 m above ``UNTILED_MAX_POINTS``.
+    tiler : callable, optional
+        Replaces :func:`classify_tiled` (same arguments and returns), e.g.
+        :func:`prc_slam.jobs.distributed.classify_tiled_distributed` bound to a Dask client.
 
     Returns
     -------
@@ -96,7 +100,7 @@ def run_mapclass(
         tile = 40.0 if n_points > UNTILED_MAX_POINTS else 0.0
     t0 = time.perf_counter()
     if tile > 0:
-        labels, seconds, density = classify_tiled(
+        labels, seconds, density = (tiler or classify_tiled)(
             chunks(), config, tile, margin, labels_out=labels_out, progress=progress, details=True
         )
     else:

@@ -300,3 +300,20 @@ def test_second_attempt_returns_the_published_result(sims, tmp_path):
     row = run_task(task, str(tmp_path / "elsewhere"), None, "b3")
     assert row["status"] == "failed" and "not on a file system" in row["error"]
     assert not (tmp_path / "elsewhere").exists()
+
+
+def test_mapclass_job_tiles_on_the_cluster(client, sims, tmp_path):
+    """``mapclass_job(tile=..., tiler=...)``: the job's tiles on the workers, the same files and scores."""
+    from prc_slam.config import Config
+    from prc_slam.jobs.distributed import classify_tiled_distributed
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    serial = mapclass_job(sims[1], Config(), tmp_path / "serial", tile=15.0, margin=5.0)
+    tiler = partial(classify_tiled_distributed, client=client)
+    spread = mapclass_job(sims[1], Config(), tmp_path / "spread", tile=15.0, margin=5.0, tiler=tiler)
+    serial.pop("files"), spread.pop("files")  # their own directories
+    assert _differences(_no_timings(serial), _no_timings(spread)) == []
+    las = sorted(p.name for p in (tmp_path / "serial").glob("*.las"))
+    assert "map_classified.las" in las and las == sorted(p.name for p in (tmp_path / "spread").glob("*.las"))
+    for name in las:
+        assert (tmp_path / "serial" / name).read_bytes() == (tmp_path / "spread" / name).read_bytes(), name

@@ -69,6 +69,7 @@ def classify_map(
     viewer: Viewer | None = None,
     reporter: Reporter | None = None,
     laz: bool = False,
+    tiler: Callable[..., Any] | None = None,
 ) -> dict[str, Any]:
     """Classify, write the per-class LAS (``laz``: LAZ) files, score; returns the metrics. Tiled
     runs keep the labels in a memory-mapped scratch file (one byte per point), so the map never
@@ -92,7 +93,7 @@ def classify_map(
             warnings.simplefilter("ignore", DensityWarning)  # logged below, once
             labels, metrics = run_mapclass(
                 points_source, n_points, cfg.mapclass, tile, margin,
-                labels_out=None if store is None else store[:n_points], progress=progress,
+                labels_out=None if store is None else store[:n_points], progress=progress, tiler=tiler,
             )  # fmt: skip
         for message in metrics.get("messages", []):
             log.warning(message)
@@ -129,6 +130,7 @@ def mapclass_job(
     note: Callable[[str], None] | None = None,
     laz: bool = False,
     reference: bool | None = None,
+    tiler: Callable[..., Any] | None = None,
     **open_options: Any,
 ) -> dict[str, Any]:
     """Classify a cloud file, or a sequence accumulated at its poses (ground truth or ``poses``).
@@ -147,7 +149,7 @@ def mapclass_job(
         ref, inst = own if own is not None else (None, None)
         metrics = classify_map(
             lambda: cloud_chunks(input), cloud_size(input), cfg, out, tile, margin, ref, inst, viewer=viewer,
-            reporter=reporter, laz=laz,
+            reporter=reporter, laz=laz, tiler=tiler,
         )  # fmt: skip
         if own is not None and note is not None:
             note(f"scored against the classes stored in {input}")
@@ -159,7 +161,7 @@ def mapclass_job(
         metrics = classify_map(
             lambda: array_chunks(cloud.points), len(cloud), cfg, out, tile, margin,
             cloud.attributes.get("reference"), cloud.attributes.get("instance"), viewer=viewer, reporter=reporter,
-            laz=laz,
+            laz=laz, tiler=tiler,
         )  # fmt: skip
     viewer.close()
     metrics["input"] = str(input)
