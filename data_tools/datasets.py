@@ -2,49 +2,16 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
-from typing import Protocol
-
-import numpy as np
 
 from data_tools.errors import DataError
-from prc_slam.scan import Scan
+from data_tools.sequence import Dataset
 
 FORMATS = ("kitti", "ouster", "sim", "ouster-pcap", "velodyne-pcap", "pcd", "las", "rosbag")
 # aliases accepted by --format
 FORMAT_ALIASES = {"pcap": "ouster-pcap", "ply": "pcd", "bin": "pcd", "laz": "las"}
 FORMAT_ALIASES.update({k: "rosbag" for k in ("bag", "mcap", "ros1", "ros2", "db3")})
 SWEEP_SUFFIXES = (".pcd", ".ply", ".bin")
-
-
-class Dataset(Protocol):
-    """A sequence of Scans with optional ground-truth poses and frame times."""
-
-    format: str
-    name: str
-    poses: np.ndarray | None
-    times: np.ndarray | None
-
-    def __len__(self) -> int: ...
-    def __getitem__(self, i: int) -> Scan: ...
-    def __iter__(self) -> Iterator[Scan]: ...
-
-
-class SequenceBase:
-    """Indexable, iterable sequence of Scans; subclasses implement ``__getitem__`` over ``files``."""
-
-    files: list[Path]
-
-    def __len__(self) -> int:
-        return len(self.files)
-
-    def __iter__(self) -> Iterator[Scan]:
-        for i in range(len(self)):
-            yield self[i]
-
-    def __getitem__(self, i: int) -> Scan:
-        raise NotImplementedError
 
 
 def _bag_kind(path: Path) -> str | None:
@@ -92,9 +59,50 @@ def detect_format(path: str | Path) -> str:
     )
 
 
+#: the reader options each format takes (an option given for another format is an error, not ignored)
+_ORGANISER_OPTIONS = ("rows", "cols", "organize_method")
+FORMAT_OPTIONS: dict[str, tuple[str, ...]] = {
+    "kitti": _ORGANISER_OPTIONS,
+    "ouster": ("destaggered",),
+    "sim": (),
+    "ouster-pcap": ("meta", "destaggered"),
+    "velodyne-pcap": ("model",),
+    "pcd": _ORGANISER_OPTIONS,
+    "las": _ORGANISER_OPTIONS,
+    "rosbag": ("topic", *_ORGANISER_OPTIONS),
+}
+
+_OPTION_FLAGS = {"organize_method": "--organize", "destaggered": "--destaggered"}
+
+
+def _organiser(path: Path, options: dict[str, object], **extra: object):
+    """An Organizer with the sensor hints given on the command line."""
+    from data_tools.organize import Organizer
+
+    rows, cols = options.get("rows"), options.get("cols")
+    return Organizer(
+        rows=None if rows is None else int(str(rows)),
+        cols=None if cols is None else int(str(cols)),
+        method=str(options.get("organize_method") or "auto"),
+        source_name=str(path),
+        **extra,
+    )
+
+
 def open_dataset(path: str | Path, fmt: str | None = None, **options: object) -> Dataset:
-    """Open ``path`` as a dataset; ``fmt`` overrides the detected format."""
+    """Open ``path`` as a dataset; ``fmt`` overrides the detected format.
+
+    ``options`` are the readers' options (``topic``, ``meta``, ``model``, ``destaggered``, and the
+    organiser's hints ``rows``, ``cols``, ``organize_method``); one that the input's format does not
+    take raises :class:`DataError` naming it."""
     fmt = FORMAT_ALIASES.get(fmt, fmt) if fmt else detect_format(path)
+    given = {k: v for k, v in options.items() if v is not None and v is not False}
+    allowed = FORMAT_OPTIONS.get(fmt)
+    if allowed is not None:
+        unused = [k for k in given if k not in allowed]
+        if unused:
+            flags = ", ".join(_OPTION_FLAGS.get(k, "--" + k) for k in unused)
+            raise DataError(f"{path}: {flags} does not apply to {fmt} input")
     if fmt == "kitti":
         from data_tools.kitti import KittiSequence
 
@@ -130,11 +138,17 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
 
         rows, cols = options.get("rows"), options.get("cols")
         return SweepFolder(
-            path, rows=None if rows is None else int(str(rows)), cols=None if cols is None else int(str(cols))
+            path,
+            rows=None if rows is None else int(str(rows)),
+            cols=None if cols is None else int(str(cols)),
+            method=str(options.get("organize_method") or "auto"),
         )
     if fmt == "rosbag":
         from data_tools.rosbag import RosbagSequence
 
         topic = options.get("topic")
-        return RosbagSequence(path, topic=None if topic is None else str(topic))
+        organizer = None
+        if any(k in given for k in _ORGANISER_OPTIONS):
+            organizer = _organiser(Path(path), options)
+        return RosbagSequence(path, topic=None if topic is None else str(topic), organizer=organizer)
     raise DataError(f"{path}: unsupported format {fmt!r}; choose from {FORMATS}")

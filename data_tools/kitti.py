@@ -14,9 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from data_tools.datasets import SequenceBase
 from data_tools.errors import DataError
 from data_tools.organize import Organizer
+from data_tools.sequence import SequenceBase
+from data_tools.trajectory_io import read_kitti_poses, read_times
 from prc_slam import labels as L
 from prc_slam.scan import Scan
 
@@ -75,40 +76,6 @@ def read_calib_tr(path: str | Path) -> np.ndarray:
                 raise DataError(f"{path}: Tr is not numeric: {exc}") from exc
             return np.vstack([m, [0.0, 0.0, 0.0, 1.0]])
     raise DataError(f"{path}: no 'Tr:' line")
-
-
-def read_kitti_poses(path: str | Path) -> np.ndarray:
-    """Read a KITTI pose file (one row-major 3x4 matrix per line) as ``float64[n, 4, 4]``."""
-    path = Path(path)
-    try:
-        data = np.loadtxt(path, ndmin=2)
-    except (OSError, ValueError) as exc:
-        raise DataError(f"{path}: cannot read KITTI poses: {exc}") from exc
-    if data.size == 0:
-        return np.zeros((0, 4, 4))
-    if data.shape[1] != 12:
-        raise DataError(f"{path}: {data.shape[1]} values per line, expected 12 (3x4 row-major)")
-    if not np.isfinite(data).all():
-        raise DataError(f"{path}: non-finite values")
-    poses = np.tile(np.eye(4), (len(data), 1, 1))
-    poses[:, :3, :] = data.reshape(-1, 3, 4)
-    return poses
-
-
-def read_times(path: str | Path) -> np.ndarray:
-    """Read ``times.txt`` (one time in seconds per line), checking monotonicity."""
-    path = Path(path)
-    try:
-        t = np.loadtxt(path, ndmin=1)
-    except (OSError, ValueError) as exc:
-        raise DataError(f"{path}: cannot read times: {exc}") from exc
-    if not np.isfinite(t).all():
-        raise DataError(f"{path}: non-finite times")
-    if (np.diff(t) <= 0).any():
-        raise DataError(
-            f"{path}: times are not strictly increasing (first at line {int(np.argmax(np.diff(t) <= 0)) + 2})"
-        )
-    return t
 
 
 class KittiSequence(SequenceBase):

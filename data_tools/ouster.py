@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from data_tools.datasets import SequenceBase
 from data_tools.errors import DataError
+from data_tools.sequence import SequenceBase
 from prc_slam.scan import Scan, SpinningSensor
 
 REQUIRED = ("range_mm", "column_ts_ns", "beam_altitude_deg", "beam_azimuth_deg", "pixel_shift_by_row")

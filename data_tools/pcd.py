@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from data_tools.datasets import SequenceBase
 from data_tools.errors import DataError
+from data_tools.sequence import SequenceBase
 from prc_slam.scan import Scan
 
 log = logging.getLogger("prc_slam.readers")
@@ -356,7 +356,7 @@ def read_las_fields(path: str | Path) -> dict[str, np.ndarray]:
     """A ``.las`` / ``.laz`` cloud's coordinates and point dimensions as fields (LAZ via lazrs)."""
     import laspy
 
-    from data_tools.clouds import laz_backend
+    from data_tools.laz import laz_backend
 
     path = Path(path)
     backend = laz_backend(path)

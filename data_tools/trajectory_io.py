@@ -7,8 +7,26 @@ from pathlib import Path
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.kitti import read_kitti_poses
 from data_tools.textfiles import read_numeric_table
+
+
+def read_kitti_poses(path: str | Path) -> np.ndarray:
+    """Read a KITTI pose file (one row-major 3x4 matrix per line) as ``float64[n, 4, 4]``; errors
+    name the file and the (1-based) line."""
+    data = read_numeric_table(path, 12, "KITTI poses: 12 values per line, a row-major 3x4 matrix")
+    poses = np.tile(np.eye(4), (len(data), 1, 1))
+    poses[:, :3, :] = data.reshape(-1, 3, 4)
+    return poses
+
+
+def read_times(path: str | Path) -> np.ndarray:
+    """Read ``times.txt`` (one time in seconds per line), checking that they increase; errors name
+    the file and the (1-based) line."""
+    t = read_numeric_table(path, 1, "one time in seconds per line")[:, 0]
+    if (np.diff(t) <= 0).any():
+        # data rows, not file lines, when the file has blank or comment lines; the same here
+        raise DataError(f"{path}: line {int(np.argmax(np.diff(t) <= 0)) + 2}: times are not strictly increasing")
+    return t
 
 
 def write_kitti_poses(path: str | Path, poses: np.ndarray) -> None:
@@ -93,4 +111,4 @@ def read_tum_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return data[:, 0] if len(data) else np.zeros(0), poses
 
 
-__all__ = ["read_kitti_poses", "read_tum_poses", "write_kitti_poses", "write_tum_poses"]
+__all__ = ["read_kitti_poses", "read_times", "read_tum_poses", "write_kitti_poses", "write_tum_poses"]

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from data_tools.datasets import SequenceBase
 from data_tools.errors import DataError
+from data_tools.sequence import SequenceBase
 from prc_slam.scan import Scan
 
 log = logging.getLogger("prc_slam.readers")

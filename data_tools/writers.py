@@ -7,8 +7,8 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from data_tools.clouds import laz_backend
 from data_tools.errors import DataError
+from data_tools.laz import laz_backend
 from prc_slam import labels as L
 
 

@@ -1,4 +1,4 @@
-"""The ``filter`` job: every sweep through PRC and the filter policy, the kept points written as a
+"""The ``filter`` stage: every sweep through PRC and the filter policy, the kept points written as a
 stream any SLAM system can replay (issue 14, part 3).
 
 Per frame: PRC labels every input point (:func:`prc_slam.pipeline.classify_frames`), the
@@ -11,25 +11,22 @@ points of an organised Ouster cloud or NaN points) are never written: they are n
 With ``keep_labels`` the policy is replaced by a plain class selection: every point whose label
 is listed is kept (no thinning), every other point is dropped.
 
-The writers live in ``data_tools.stream_out`` (the core does not import ``data_tools`` at module
-level; the default writer factory is imported when the job runs, as ``prc_slam.benchmark``
-does for its inputs).
+This module holds the policy (:func:`choose_points`) and the pipeline sink (:class:`FilterSink`);
+the job that opens the input and the writer (``data_tools.stream_out``) is
+:func:`prc_slam.jobs.filter.run_filter`.
 """
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Iterable, Sequence
-from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from prc_slam import labels as L
 from prc_slam.filtering import FilterConfig, filter_points
-from prc_slam.pipeline import ClassifiedFrame, classify_frames
-from prc_slam.prc.config import PRCConfig
-from prc_slam.scan import Scan, ScanError
+from prc_slam.pipeline import ClassifiedFrame
+from prc_slam.scan import ScanError
 
 
 def parse_keep_labels(values: Sequence[str | int] | str | None) -> list[int] | None:
@@ -174,67 +171,3 @@ class FilterSink:
                 "max_collisions_pct": self.worst_collisions,
             }
         return out
-
-
-def run_filter(
-    dataset: Iterable[Scan],
-    out: str | Path,
-    config: Any,
-    *,
-    keep_labels: Sequence[str | int] | None = None,
-    progress: Callable[[int, int | None], None] | None = None,
-    out_format: str | None = None,
-    label_dtype: str = "uint8",
-    overwrite: bool = False,
-    writer_factory: Callable[..., Any] | None = None,
-) -> dict[str, Any]:
-    """Classify every sweep of ``dataset`` with PRC, filter it and write the kept points to ``out``.
-
-    Parameters
-    ----------
-    dataset : a Dataset (``data_tools.open_dataset``) or any iterable of Scans
-    out : output path (a ``.mcap`` file, a ``.bag`` file, a rosbag2 folder, a PCD or KITTI folder)
-    config : ``prc_slam.config.Config`` (its ``prc`` and ``filter`` parts are used)
-    keep_labels : label names or codes; replaces the policy by "keep exactly these classes"
-    progress : callable(frames_done, frames_total_or_None), called after every frame
-    out_format : ``mcap``, ``ros2``, ``ros1``, ``pcd`` or ``kitti``; default from the suffix of
-        ``out``, else the input's own kind (see ``data_tools.stream_out.open_stream_writer``)
-    label_dtype : ``uint8`` or ``uint16`` (type of the ``label`` field in bag/MCAP output)
-    overwrite : replace an existing ``out``
-    writer_factory : callable(out, dataset, out_format, label_dtype=, overwrite=) returning a
-        writer with ``write(scan, keep, labels)``, ``close()``, ``format``; default
-        ``data_tools.stream_out.open_stream_writer``
-
-    Returns
-    -------
-    dict
-        ``{"frames", "points_in", "points_kept", "kept_fraction", "per_class": {name: {"in",
-        "kept"}}, "out", "out_format", "keep_labels", "seconds", "prc_seconds", "organize"}``
-        (``organize`` when the reader organised the sweeps: warnings and the worst collision
-        share over the run).
-    """
-    prc_cfg: PRCConfig = config.prc
-    codes = parse_keep_labels(keep_labels)
-    if writer_factory is None:
-        from data_tools.stream_out import open_stream_writer as writer_factory
-    try:
-        total: int | None = len(dataset)  # type: ignore[arg-type]
-    except TypeError:
-        total = None
-    from prc_slam.prc.algorithm import warm_up
-
-    warm_up()
-    t0 = time.perf_counter()
-    writer = writer_factory(Path(out), dataset, out_format, label_dtype=label_dtype, overwrite=overwrite)
-    sink = FilterSink(writer, config.filter, codes)
-    try:
-        for frame in classify_frames(dataset, prc_cfg):
-            sink.add(frame)
-            if progress is not None:
-                progress(sink.frames, total)
-    finally:
-        sink.close()
-    result = sink.metrics()
-    result["out"] = str(out)
-    result["seconds"] = time.perf_counter() - t0
-    return result

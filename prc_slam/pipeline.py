@@ -281,9 +281,8 @@ class Pipeline:
             org = scan.meta.get("organize")
             if org:
                 self._merge_organize(result, org, scan.source)
-            bad = int(scan.meta.get("nonfinite_points", 0))
-            if bad:
-                result.nonfinite_points += bad
+            nonfinite = (org or {}).get("nonfinite_points", 0) or scan.meta.get("nonfinite_points", 0)
+            result.nonfinite_points += int(nonfinite)
             yield scan
 
     def _merge_organize(self, result: PipelineResult, org: dict[str, Any], source: str) -> None:

@@ -89,9 +89,11 @@ def test_empty_sweep_is_counted_and_reported(tmp_path, kitti):
     (root / "velodyne" / "000001.bin").write_bytes(b"")
     res = runner.invoke(app, ["classify", str(root), "--json", str(tmp_path / "m.json")])
     assert res.exit_code == 0, res.output
-    assert "empty sweep" in res.output
+    warnings = [line for line in res.output.splitlines() if line.startswith("warning:")]
+    assert any("000001.bin" in w and "skipped frame 1" in w for w in warnings), res.output
     m = json.loads((tmp_path / "m.json").read_text())
-    assert m["empty_frames"] == 1 and m["frames"] == 3
+    assert m["skipped_frames"] == 1 and m["frames"] == 2
+    assert "000001.bin" in m["skips"][0]["reason"]
 
 
 def test_nan_points_become_no_returns_counted(tmp_path, kitti):

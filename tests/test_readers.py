@@ -163,7 +163,7 @@ def test_missing_calib_and_bad_poses(tmp_path):
         read_calib_tr(root / "calib.txt")
     (root / "calib.txt").write_text(CALIB)
     (root / "poses.txt").write_text("1 0 0\n")
-    with pytest.raises(DataError, match="3 values per line"):
+    with pytest.raises(DataError, match="line 1: 3 values, expected 12"):
         KittiSequence(root)
 
 

@@ -23,7 +23,8 @@ from data_tools.rosbag import (
 from data_tools.sim.simulator import SimConfig, Simulator
 from data_tools.stream_out import RosCloudWriter, open_stream_writer
 from prc_slam.config import Config
-from prc_slam.filter_run import choose_points, parse_keep_labels, run_filter
+from prc_slam.filter_run import choose_points, parse_keep_labels
+from prc_slam.jobs.filter import run_filter
 from prc_slam.pipeline import classify_frames
 from prc_slam.prc.config import PRCConfig
 from prc_slam.scan import Scan
@@ -249,21 +250,12 @@ def test_time_unit_without_period_follows_the_datatype():
 # the three layouts read back
 
 
-ORGANISER_PHASE = pytest.mark.xfail(
-    strict=False,
-    reason="organiser bug (reported): data_tools/organize.py _row_phase returns each row's column phase in [0, 1), "
-    "so rows whose returns sit on the bin centre flip between phase ~0 and ~1 and shift by one column "
-    "(velodyne 0.83-0.85 / no-ring 0.92 of points in their slot, PRC labels 0.96 / 0.97); with the phase in "
-    "[-0.5, 0.5) (p - floor(p + 0.5)) both layouts reach 1.0000 slots and labels",
-)
-
-
 @pytest.mark.parametrize(
     "layout",
     [
-        pytest.param("velodyne", marks=ORGANISER_PHASE),
+        "velodyne",
         "ouster",
-        pytest.param("no_ring", marks=ORGANISER_PHASE),
+        "no_ring",
     ],
 )
 def test_layout_read_back_slots_times_and_prc_labels(layout, layout_bags):

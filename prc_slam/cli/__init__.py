@@ -1,7 +1,8 @@
 """``prc-slam``: the command-line interface (typer), one module per command.
 
 Commands only parse options and call the library (:mod:`prc_slam.jobs`); every user error takes
-one path (:func:`prc_slam.cli.common.handles_errors`): one line ``error: <option or file>:
+one path (:func:`prc_slam.cli.common.handles_errors`); the console entry point is
+:func:`prc_slam.launcher.main`: one line ``error: <option or file>:
 <problem>`` and exit 2; Ctrl-C exits 130 with one line.
 """
 
@@ -36,11 +37,4 @@ for _module in (classify, compare, filter_cmd, mapclass, simulate, bench, demo, 
     _module.register(app)
 
 
-def main() -> None:
-    """Console entry point (see :mod:`prc_slam.launcher`)."""
-    from prc_slam.launcher import main as launch
-
-    launch()
-
-
-__all__ = ["app", "main"]
+__all__ = ["app"]

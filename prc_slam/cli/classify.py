@@ -15,11 +15,13 @@ from prc_slam.cli.common import (
     MAX_FRAMES_OPT,
     META_OPT,
     MODEL_OPT,
+    ORGANIZE_OPT,
     ROWS_OPT,
     RRD_OPT,
     SERVE_OPT,
     TOPIC_OPT,
     Mode,
+    OrganizeMethod,
     Preset,
     class_table,
     console,
@@ -48,6 +50,7 @@ def classify(
     model: str | None = MODEL_OPT,
     rows: int | None = ROWS_OPT,
     cols: int | None = COLS_OPT,
+    organize: OrganizeMethod | None = ORGANIZE_OPT,
     fmt: str | None = FORMAT_OPT,
     destaggered: bool = typer.Option(False, help="Ouster: destagger rows by pixel_shift_by_row"),
     max_frames: int | None = MAX_FRAMES_OPT,
@@ -66,7 +69,7 @@ def classify(
     from prc_slam.jobs.progress import progress
 
     cfg = prc_config(mode, preset, adaptive, config)
-    opts = input_options(topic, meta, model, rows, cols, destaggered)
+    opts = input_options(topic, meta, model, rows, cols, destaggered, organize)
     viewer = Viewer(rrd, connect, serve_web, log_every)
     with progress() as reporter:
         metrics, written = classify_job(
@@ -111,6 +114,7 @@ def detect(
     model: str | None = MODEL_OPT,
     rows: int | None = ROWS_OPT,
     cols: int | None = COLS_OPT,
+    organize: OrganizeMethod | None = ORGANIZE_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     labels_out: Path | None = typer.Option(None, help="write NNNNNN.label per frame here"),
@@ -134,7 +138,7 @@ def detect(
     with progress() as reporter:
         metrics, written = detect_job(
             input, paper=paper, fmt=fmt, max_frames=max_frames, outputs=Outputs(labels_out, las), viewer=viewer,
-            reporter=reporter, **input_options(topic, meta, model, rows, cols),
+            reporter=reporter, **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip
     seconds, points = metrics["seconds"], metrics["points"]
     warm = metrics["points_per_s_after_first"]

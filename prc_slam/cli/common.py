@@ -31,6 +31,13 @@ class Mode(str, Enum):
     forest = "forest"
 
 
+class OrganizeMethod(str, Enum):
+    auto = "auto"
+    ring = "ring"
+    order = "order"
+    beams = "beams"
+
+
 class Preset(str, Enum):
     paper = "paper"
     multibeam = "multibeam"
@@ -235,9 +242,12 @@ def input_options(
     rows: int | None = None,
     cols: int | None = None,
     destaggered: bool = False,
+    organize: OrganizeMethod | None = None,
 ) -> dict[str, Any]:
     """The reader options given on the command line (only those set), for ``open_dataset``."""
     opts: dict[str, Any] = {"topic": topic, "meta": meta, "model": model, "rows": rows, "cols": cols}
+    if organize is not None:
+        opts["organize_method"] = organize.value
     if destaggered:
         opts["destaggered"] = True
     return {k: v for k, v in opts.items() if v is not None}
@@ -270,6 +280,9 @@ TOPIC_OPT = typer.Option(None, "--topic", help="bags/MCAP: the PointCloud2 topic
 META_OPT = typer.Option(None, "--meta", help="Ouster pcap: the sensor's metadata json (default: beside the pcap)")
 MODEL_OPT = typer.Option(None, "--model", help="Velodyne pcap: the sensor model (default: from the packets)")
 ROWS_OPT = typer.Option(None, "--rows", min=1, help="unorganised sweeps: the sensor's beams (default: estimated)")
+ORGANIZE_OPT = typer.Option(
+    None, "--organize", help="unorganised sweeps: rows from a ring field, the point order or the beams (default: auto)"
+)
 COLS_OPT = typer.Option(None, "--cols", min=1, help="unorganised sweeps: columns per sweep (default: estimated)")
 FORMAT_OPT = typer.Option(None, "--format", help="input format (default: detected)")
 MAX_FRAMES_OPT = typer.Option(None, "--max-frames", min=1, help="use only the first N frames")

@@ -18,6 +18,7 @@ from prc_slam.cli.common import (
     MAX_FRAMES_OPT,
     META_OPT,
     MODEL_OPT,
+    ORGANIZE_OPT,
     ROWS_OPT,
     RRD_OPT,
     SERVE_OPT,
@@ -25,6 +26,7 @@ from prc_slam.cli.common import (
     TOPIC_OPT,
     WEB_PORT_OPT,
     Mode,
+    OrganizeMethod,
     Preset,
     class_table,
     console,
@@ -74,6 +76,7 @@ def compare(
     model: str | None = MODEL_OPT,
     rows: int | None = ROWS_OPT,
     cols: int | None = COLS_OPT,
+    organize: OrganizeMethod | None = ORGANIZE_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     rrd: Path | None = RRD_OPT,
@@ -107,7 +110,7 @@ def compare(
         run, prc_labels = run_odometry(
             input, cfg, names, fmt=fmt, max_frames=max_frames, online=online, score_prc=True, viewer=viewer,
             reporter=reporter, keep_labels_every=mapclass_every if mapclass else None,
-            **input_options(topic, meta, model, rows, cols),
+            **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip
     written = run.written + write_outputs(run, cfg, out, f"Odometry comparison on {input}")
     print_table(variant_table(run.metrics, f"odometry on {input}"))
@@ -121,7 +124,7 @@ def compare(
         from prc_slam.report import mapclass_section
 
         variant = next((v for v in names if v != "raw"), names[0])
-        opts = input_options(topic, meta, model, rows, cols)
+        opts = input_options(topic, meta, model, rows, cols, organize=organize)
         mc = compare_mapclass(input, fmt, run, variant, mapclass_every, prc_labels, cfg, out, **opts)
         console.print(
             f"map: {mc['map_points']:,} points from every {mapclass_every}th frame at the {variant} poses",
@@ -151,6 +154,7 @@ def odometry(
     model: str | None = MODEL_OPT,
     rows: int | None = ROWS_OPT,
     cols: int | None = COLS_OPT,
+    organize: OrganizeMethod | None = ORGANIZE_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     rrd: Path | None = RRD_OPT,
@@ -171,7 +175,7 @@ def odometry(
     with progress() as reporter:
         run, _ = run_odometry(
             input, cfg, [name], fmt=fmt, max_frames=max_frames, viewer=Viewer(rrd, connect, serve_web, log_every),
-            reporter=reporter, **input_options(topic, meta, model, rows, cols),
+            reporter=reporter, **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip
     written = list(run.written)
     if poses_out is not None:
@@ -191,6 +195,7 @@ def view(
     model: str | None = MODEL_OPT,
     rows: int | None = ROWS_OPT,
     cols: int | None = COLS_OPT,
+    organize: OrganizeMethod | None = ORGANIZE_OPT,
     fmt: str | None = FORMAT_OPT,
     online: bool = typer.Option(True, "--online/--no-online", help="also run and show the online detectors"),
     log_every: int = typer.Option(1, "--log-every", min=1, help="log clouds and images on every n-th frame"),
@@ -207,5 +212,5 @@ def view(
         run_odometry(
             input, cfg, ["raw", "prc"], fmt=fmt, max_frames=max_frames, online=online,
             viewer=Viewer(spawn=True, every=log_every), reporter=reporter,
-            **input_options(topic, meta, model, rows, cols),
+            **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip

@@ -14,8 +14,10 @@ from prc_slam.cli.common import (
     MAX_FRAMES_OPT,
     META_OPT,
     MODEL_OPT,
+    ORGANIZE_OPT,
     ROWS_OPT,
     Mode,
+    OrganizeMethod,
     Preset,
     console,
     handles_errors,
@@ -60,6 +62,7 @@ def filter_stream(
     model: str | None = MODEL_OPT,
     rows: int | None = ROWS_OPT,
     cols: int | None = COLS_OPT,
+    organize: OrganizeMethod | None = ORGANIZE_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     json_path: Path | None = JSON_OPT,
@@ -79,7 +82,7 @@ def filter_stream(
         metrics = filter_job(
             input, cfg, out, fmt=fmt, max_frames=max_frames, keep_labels=keep,
             out_format=None if out_format is None else out_format.value, label_dtype=label_type.value,
-            overwrite=overwrite, reporter=reporter, **input_options(topic, meta, model, rows, cols),
+            overwrite=overwrite, reporter=reporter, **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip
     kept = metrics.get("kept_fraction")
     console.print(

@@ -16,10 +16,12 @@ from prc_slam.cli.common import (
     MAX_FRAMES_OPT,
     META_OPT,
     MODEL_OPT,
+    ORGANIZE_OPT,
     ROWS_OPT,
     RRD_OPT,
     SERVE_OPT,
     TOPIC_OPT,
+    OrganizeMethod,
     class_table,
     console,
     handles_errors,
@@ -84,6 +86,7 @@ def mapclass(
     model: str | None = MODEL_OPT,
     rows: int | None = ROWS_OPT,
     cols: int | None = COLS_OPT,
+    organize: OrganizeMethod | None = ORGANIZE_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     every: int = typer.Option(1, min=1, help="sequence: accumulate every n-th frame"),
@@ -113,7 +116,7 @@ def mapclass(
         metrics = mapclass_job(
             input, cfg, out, tile=tile, margin=margin, fmt=fmt, max_frames=max_frames, every=every, poses=poses,
             viewer=viewer, reporter=reporter, note=say, laz=laz, reference=reference,
-            **input_options(topic, meta, model, rows, cols),
+            **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip
     print_mapclass(metrics, f"map classification of {input}")
     written = [out / ("map_classified.laz" if laz else "map_classified.las")]
