@@ -7,7 +7,7 @@ reference labels.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -52,9 +52,14 @@ class PRCScorer:
 
 
 class OnlineScorer:
-    """Online detector labels against the reference, plus vehicles and curb sections found."""
+    """Online detector labels against the reference, plus vehicles and curb sections found.
 
-    OBJECT_CODES = (L.VEHICLE, L.CURB)
+    A vehicle is found when at least half of its points are labelled vehicle; a curb section
+    (a thin, short object) when at least 30 % of its points are labelled curb. Both shares are in
+    the metrics (``objects.<class>.share``)."""
+
+    OBJECT_SHARE: ClassVar[dict[int, float]] = {L.VEHICLE: 0.5, L.CURB: 0.3}
+    OBJECT_CODES = tuple(OBJECT_SHARE)
 
     def __init__(self) -> None:
         self.confusion = ConfusionAccumulator()
@@ -74,7 +79,8 @@ class OnlineScorer:
             self.confusion.add(ref, scan.per_point(res.labels))
         if scan.gt_labels is not None and scan.gt_instance is not None:
             for code in self.OBJECT_CODES:
-                found, present = objects_found(scan.gt_labels, scan.gt_instance, res.labels, code)
+                share = self.OBJECT_SHARE[code]
+                found, present = objects_found(scan.gt_labels, scan.gt_instance, res.labels, code, share=share)
                 self.objects[code] += np.array([found, present])
 
     def close(self, result: PipelineResult) -> None:
@@ -98,6 +104,7 @@ class OnlineScorer:
             out["per_class"] = self.confusion.per_class()
             out["confusion"] = self.confusion.to_json()
             out["objects"] = {
-                L.CODE_TO_NAME[code]: {"found": int(fp[0]), "present": int(fp[1])} for code, fp in self.objects.items()
+                L.CODE_TO_NAME[code]: {"found": int(fp[0]), "present": int(fp[1]), "share": self.OBJECT_SHARE[code]}
+                for code, fp in self.objects.items()
             }
         return out
