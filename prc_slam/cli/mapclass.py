@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import os
 from enum import Enum
 from pathlib import Path
 from typing import Any
@@ -75,6 +78,10 @@ def mapclass(
         None, min=0.0, help="tile side (m); 0: one piece; default: tiles above 12 M points"
     ),
     margin: float = typer.Option(6.0, min=0.0, help="context around each tile (m)"),
+    scheduler: str | None = typer.Option(
+        None, "--scheduler", help="run the tiles on a Dask scheduler (tcp://HOST:8786; or $DASK_SCHEDULER_ADDRESS)"
+    ),
+    workers: int | None = typer.Option(None, "--workers", min=1, help="run the tiles on a local Dask cluster"),
     laz: bool = typer.Option(False, "--laz", help="write the combined and per-class clouds as LAZ"),
     reference: bool | None = typer.Option(
         None,
@@ -112,10 +119,17 @@ def mapclass(
     if mode is not None:
         cfg.mapclass.mode = mode.value
     viewer = Viewer(rrd, connect, serve_web, 1, map_voxel=map_voxel)
-    with progress() as reporter:
+    with contextlib.ExitStack() as stack:
+        tiler = None
+        if scheduler is not None or workers is not None or os.environ.get("DASK_SCHEDULER_ADDRESS"):
+            from prc_slam.jobs.distributed import classify_tiled_distributed, open_client
+
+            client = stack.enter_context(open_client(scheduler, workers, note=say))
+            tiler = functools.partial(classify_tiled_distributed, client=client)
+        reporter = stack.enter_context(progress())
         metrics = mapclass_job(
             input, cfg, out, tile=tile, margin=margin, fmt=fmt, max_frames=max_frames, every=every, poses=poses,
-            viewer=viewer, reporter=reporter, note=say, laz=laz, reference=reference,
+            viewer=viewer, reporter=reporter, note=say, laz=laz, reference=reference, tiler=tiler,
             **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip
     print_mapclass(metrics, f"map classification of {input}")
