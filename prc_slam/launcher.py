@@ -36,10 +36,13 @@ def main() -> None:
         app()
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-        if code == 130 or _interrupted:
+        if code == 130:  # the command said "error: interrupted" already
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(130)
+        if _interrupted:  # Ctrl-C while the command was finishing
+            _exit_interrupted()
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # done: a Ctrl-C during tear-down changes nothing
         raise
     except BaseException:
         if _interrupted:
