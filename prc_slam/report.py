@@ -23,23 +23,62 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+def health_section(result: CompareResult, metrics: dict[str, Any]) -> list[str]:
+    """Markdown lines: which variants failed (frame, reason), and each variant's first
+    suspicious frame (ICP residual, threshold or inlier fraction off its running level)."""
+    variants = metrics["variants"]
+    n_frames = len(result.times)
+    lines = ["", "## Health of each variant", ""]
+    lines += ["| variant | status | first suspicious frame | why | suspicious frames | mean inlier fraction |"]
+    lines += ["|---|---|---|---|---|---|"]
+    for name, m in variants.items():
+        if m.get("failed"):
+            status = f"**FAILED at frame {m['failed_at_frame']}**: {m['failure_reason']}"
+        else:
+            status = f"ok ({m['frames']} of {n_frames} frames)"
+        first = m.get("first_suspicious_frame")
+        where = "-" if first is None else str(first)
+        if first is not None and first < len(result.names):
+            where += f" (`{result.names[first]}`)"
+        fr = [f for f in m.get("per_frame", {}).get("inlier_fraction", []) if f is not None]
+        lines.append(
+            f"| {name} | {status} | {where} | {m.get('first_suspicious_reason') or '-'} | "
+            f"{len(m.get('suspicious_frames', []))} | {_fmt(float(np.mean(fr)) if fr else None)} |"
+        )
+    failed = [n for n, m in variants.items() if m.get("failed")]
+    if failed:
+        lines += [
+            "",
+            "A failed variant's trajectory, metrics and times cover the frames before its failure; "
+            "its error figures are therefore not comparable with the others'.",
+        ]
+    for name, why in metrics.get("skipped_variants", {}).items():
+        lines.append(f"- `{name}` skipped: {why}")
+    return lines
+
+
 def markdown_report(result: CompareResult, metrics: dict[str, Any], title: str) -> str:
-    """The report: metrics table, per-stage timings, points per class."""
+    """The report: metrics table, health (failures, first suspicious frame), per-stage timings,
+    points per class."""
     variants = metrics["variants"]
     fields = [f for f in FIELDS if any(f in m for m in variants.values())]
     lines = [f"# {title}", "", "| variant | " + " | ".join(fields) + " |", "|---" * (len(fields) + 1) + "|"]
     for name, m in variants.items():
-        lines.append(f"| {name} | " + " | ".join(_fmt(m.get(f)) for f in fields) + " |")
+        mark = " (failed)" if m.get("failed") else ""
+        lines.append(f"| {name}{mark} | " + " | ".join(_fmt(m.get(f)) for f in fields) + " |")
     base = variants.get("raw")
-    if base:
+    if base and base.get("ms_per_frame"):
         lines += ["", "Relative to `raw`:", ""]
         for name, m in variants.items():
-            if name == "raw":
+            if name == "raw" or not m.get("ms_per_frame"):
                 continue
             parts = [f"time x{m['ms_per_frame'] / base['ms_per_frame']:.3f}"]
-            if "ate_rmse_m" in m and base.get("ate_rmse_m"):
+            if m.get("ate_rmse_m") is not None and base.get("ate_rmse_m"):
                 parts.append(f"ATE x{m['ate_rmse_m'] / base['ate_rmse_m']:.3f}")
+            if m.get("failed") or base.get("failed"):
+                parts.append("(over different frames: a variant failed)")
             lines.append(f"- `{name}`: " + ", ".join(parts))
+    lines += health_section(result, metrics)
     lines += [
         "",
         "## Milliseconds per frame, by stage",
@@ -71,9 +110,14 @@ def plot_trajectories(result: CompareResult, path: Path) -> None:
     ax = axes[0, 0]
     if result.gt_poses is not None:
         ax.plot(result.gt_poses[:, 0, 3], result.gt_poses[:, 1, 3], "k-", lw=2.5, label="ground truth")
-    for name in result.runs:
+    for name, run in result.runs.items():
         p = result.estimate_in_world(name)
-        ax.plot(p[:, 0, 3], p[:, 1, 3], lw=1.2, label=name)
+        if not len(p):
+            continue
+        label = name if run.failed is None else f"{name} (failed at frame {run.failed['frame']})"
+        (line,) = ax.plot(p[:, 0, 3], p[:, 1, 3], lw=1.2, label=label)
+        if run.failed is not None:
+            ax.plot(p[-1, 0, 3], p[-1, 1, 3], "x", color=line.get_color(), ms=10, mew=2)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -85,9 +129,12 @@ def plot_trajectories(result: CompareResult, path: Path) -> None:
         dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1))])
         for name in result.runs:
             est = result.estimate_in_world(name)
-            rot, t, _ = E.umeyama(est[:, :3, 3], gt[:, :3, 3])
-            err = np.linalg.norm(est[:, :3, 3] @ rot.T + t - gt[:, :3, 3], axis=1)
-            ax.plot(dist, err, label=name)
+            n = len(est)
+            if n < 3:
+                continue
+            rot, t, _ = E.umeyama(est[:, :3, 3], gt[:n, :3, 3])
+            err = np.linalg.norm(est[:, :3, 3] @ rot.T + t - gt[:n, :3, 3], axis=1)
+            ax.plot(dist[:n], err, label=name)
         ax.set_xlabel("distance along the path (m)")
         ax.set_ylabel("position error after alignment (m)")
         ax.set_title("error along the path")
@@ -108,7 +155,7 @@ def write_compare_outputs(
     for name in result.runs:
         poses = result.estimate_in_world(name)
         pose_writer(out / f"{name}_poses_kitti.txt", poses)
-        tum_writer(out / f"{name}_poses_tum.txt", result.times, poses)
+        tum_writer(out / f"{name}_poses_tum.txt", result.times[: len(poses)], poses)
     if result.gt_poses is not None:
         pose_writer(out / "ground_truth_poses_kitti.txt", result.gt_poses)
         tum_writer(out / "ground_truth_poses_tum.txt", result.times, result.gt_poses)
@@ -150,4 +197,21 @@ def mapclass_section(mc: dict[str, Any]) -> str:
             *table(mc["prc_vs_map"]["per_class"]),
             "",
         ]
+    return "\n".join(lines) + "\n"
+
+
+def classification_section(metrics: dict[str, Any], title: str) -> str:
+    """Markdown for per-class scores (the ``classify``/``detect`` metrics' ``per_class``)."""
+    lines = ["", f"## {title}", ""]
+    per_class = metrics.get("per_class")
+    if not per_class:
+        return "\n".join([*lines, "No reference labels in this input.", ""]) + "\n"
+    lines += ["| class | support | precision | recall | f1 |", "|---|---|---|---|---|"]
+    for name, s in per_class.items():
+        vals = [_fmt(s[k]) for k in ("precision", "recall", "f1")]
+        lines.append(f"| {name} | {s['support']:,} | " + " | ".join(vals) + " |")
+    if "noise_in_solid_classes" in metrics:
+        lines += ["", f"Reference solid-class points labelled noise: {metrics['noise_in_solid_classes']:.3%}"]
+    for name, o in metrics.get("objects", {}).items():
+        lines.append(f"- {name} objects found: {o['found']} of {o['present']}")
     return "\n".join(lines) + "\n"

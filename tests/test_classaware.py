@@ -99,10 +99,10 @@ def forest_walk(tmp_path_factory):
 
 
 def test_golden_forest_walk(forest_walk, trajectory_regression):
-    # walking sway defeats constant-velocity deskewing (README): the forest runs go without it
+    # deskewing on (the default) since the time convention was fixed (issue 16, part 5)
     cfg = Config(
         prc=PRCConfig.preset("multibeam", mode="forest"),
-        odometry=OdometryConfig(deskew=False),
+        odometry=OdometryConfig(),
         classaware=ClassAwareConfig.for_mode("forest"),
     )
     res = run_compare(iter(forest_walk), cfg, ["prc+classaware"])

@@ -44,6 +44,35 @@ def test_filter_drops_noise_thins_ground_keeps_the_rest():
         filter_points(pts, lab[:3], FilterConfig())
 
 
+def test_filter_samples_classes_on_3d_cells_and_chooses_the_source():
+    pts = np.array(
+        [
+            [0.1, 0.1, 0.1],  # building, cell (0, 0, 0)
+            [0.3, 0.2, 0.4],  # building, same 0.5 m cell: sampled away
+            [0.3, 0.2, 0.6],  # building, cell (0, 0, 1)
+            [0.2, 0.2, 0.2],  # vegetation, same cell as the first but another class: kept
+            [0.1, 0.1, 0.0],  # ground, 2-D cell (0, 0)
+            [2.5, 0.1, 0.0],  # ground, 2-D cell (0, 0) of 3 m: thinned away
+            [4.0, 0.1, 0.0],  # ground, 2-D cell (1, 0)
+            [0.2, 0.1, 0.1],  # noise, one-sided: spared, never sampled
+        ]
+    )
+    lab = np.array([L.BUILDING] * 3 + [L.VEGETATION] + [L.GROUND] * 3 + [L.NOISE], np.uint8)
+    one = np.zeros(8, bool)
+    one[7] = True
+    cfg = FilterConfig(cell=3.0, sample={}, sample_other=0.5, source_cell={}, source_exclude=[])
+    res = filter_points(pts, lab, cfg, one)
+    assert res.keep.tolist() == [True, False, True, True, True, False, True, True] and res.source is None
+    src = filter_points(
+        pts, lab, cfg.model_copy(update={"source_cell": {"ground": 6.0}, "source_exclude": ["vegetation"]}), one
+    )
+    assert np.array_equal(src.keep, res.keep)  # the map keeps the same points
+    assert src.source.tolist() == [True, False, True, False, True, False, False, True]
+    assert not (src.source & ~src.keep).any()
+    with pytest.raises(ValueError, match="unknown class 'leaves'"):
+        filter_points(pts, lab, FilterConfig(sample={"leaves": 1.0}))
+
+
 def test_kiss_config_ignores_environment(monkeypatch):
     monkeypatch.setenv("kiss_icp_data__max_range", "7")
     monkeypatch.setenv("KISS_ICP_MAPPING__VOXEL_SIZE", "9")

@@ -14,11 +14,12 @@ by its group's weight.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam import labels as L
-from prc_slam.odometry.kiss import OdometryConfig, deskew_stamps, kiss_config
+from prc_slam.odometry.guard import OdometryFailure, check_pose, is_rigid
+from prc_slam.odometry.kiss import GuardedOdometry, OdometryConfig, kiss_config
 from prc_slam.voxels import _rehash, _slot, find
 
 #: class groups and the codes they hold; codes not listed fall into "other"
@@ -232,11 +233,12 @@ def _exp_se3(dx):
     return T
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _linearise(src, src_group, weights, table, coords, first, count, mpts, inv_voxel, max_d2, kernel, T, n_chunks):
-    """Gauss-Newton normal equations at ``T``, accumulated per chunk of source points in
-    parallel: ``H (C, 6, 6)``, ``b (C, 6)``, correspondences per chunk and group, and the group
-    matched by each source point (-1: none)."""
+    """Gauss-Newton normal equations at ``T``, accumulated per chunk of source points (serially:
+    numba's thread pool, spinning on a machine whose cores are busy, cost 12x the work itself on
+    the forest walk, 870 vs 70 ms per frame): ``H (C, 6, 6)``, ``b (C, 6)``, correspondences
+    per chunk and group, and the group matched by each source point (-1: none)."""
     n = src.shape[0]
     G = weights.shape[0]
     H = np.zeros((n_chunks, 6, 6))
@@ -246,7 +248,7 @@ def _linearise(src, src_group, weights, table, coords, first, count, mpts, inv_v
     R = T[:3, :3]
     t = T[:3, 3]
     step = (n + n_chunks - 1) // n_chunks
-    for c in prange(n_chunks):
+    for c in range(n_chunks):
         p = np.empty(3)
         r = np.empty(3)
         J = np.zeros((3, 6))
@@ -275,6 +277,33 @@ def _linearise(src, src_group, weights, table, coords, first, count, mpts, inv_v
                 for e in range(a, 6):
                     H[c, a, e] += w * (ja0 * J[0, e] + ja1 * J[1, e] + ja2 * J[2, e])
     return H, b, counts, partner
+
+
+#: fewer correspondences than this end the ICP at its current estimate (6 unknowns)
+MIN_CORRESPONDENCES = 12
+#: eigenvalues of H below this fraction of the largest are directions the correspondences do
+#: not constrain (one plane, one line, one group): the update leaves them alone
+DEGENERATE_RATIO = 1e-6
+
+
+@njit(cache=True, nogil=True)
+def _solve_constrained(H, b):
+    """``dx = -H^+ b`` restricted to the well-constrained eigen-directions of ``H`` (Zhang,
+    Kaess and Singh, ICRA 2016: solution remapping for degenerate optimisation); ``ok`` is False
+    when ``H`` or ``b`` is not finite or nothing is constrained. Collinear, coplanar or too few
+    correspondences then give a partial (or no) update instead of a NaN."""
+    dx = np.zeros(6)
+    if not (np.isfinite(H).all() and np.isfinite(b).all()):
+        return dx, False
+    w, V = np.linalg.eigh(H)
+    top = w[-1]
+    if not top > 0:
+        return dx, False
+    proj = V.T @ b
+    for k in range(6):
+        if w[k] > DEGENERATE_RATIO * top:
+            dx -= V[:, k] * (proj[k] / w[k])
+    return dx, bool(np.isfinite(dx).all())
 
 
 @njit(cache=True, nogil=True)
@@ -318,9 +347,11 @@ def icp(src, src_group, weights, table, coords, first, count, mpts, voxel, T0, m
         for a in range(6):
             for e in range(a):
                 H[a, e] = H[e, a]
-        if counts.sum() < 6:
+        if counts.sum() < MIN_CORRESPONDENCES:
             break
-        dx = np.linalg.solve(H + 1e-9 * np.eye(6), -b)
+        dx, ok = _solve_constrained(H, b)
+        if not ok:
+            break
         T = _exp_se3(dx) @ T
         if np.sqrt((dx * dx).sum()) < tol:
             break
@@ -330,8 +361,9 @@ def icp(src, src_group, weights, table, coords, first, count, mpts, voxel, T0, m
 # ---- the odometry --------------------------------------------------------------------------
 
 
-class ClassAwareOdometry:
-    """Frame-to-map odometry on a voxel map keyed by class group.
+class ClassAwareOdometry(GuardedOdometry):
+    """Frame-to-map odometry on a voxel map keyed by class group, with the guards, deskewing
+    and health of :class:`~prc_slam.odometry.kiss.KissOdometry`.
 
     Parameters
     ----------
@@ -355,7 +387,7 @@ class ClassAwareOdometry:
         self.group_of = group_of_codes()
         self.last_pose = np.eye(4)
         self.last_delta = np.eye(4)
-        self.poses: list[np.ndarray] = []
+        self._init_guard()
         self.correspondences: list[np.ndarray] = []  # per frame, per group
         self.iterations: list[int] = []
 
@@ -369,45 +401,83 @@ class ClassAwareOdometry:
         return self.map.point_cloud()[0]
 
     def register(
-        self, points: np.ndarray, times: np.ndarray | None = None, labels: np.ndarray | None = None
+        self,
+        points: np.ndarray,
+        times: np.ndarray | None = None,
+        labels: np.ndarray | None = None,
+        frame_time: float | None = None,
+        source: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Register one frame and return its pose (4x4, world = first frame).
+        """Register one frame and return its pose (4x4, world = first frame) at the frame's
+        reference time.
 
         Parameters
         ----------
         points : float (N, 3)
-            Sensor-frame points (not modified).
+            Sensor-frame points (not modified); non-finite ones are left out and counted.
         times : float (N,), optional
-            Acquisition times for deskewing (normalised to [0, 1] over the frame).
+            Acquisition times for deskewing (the adapter's convention, see :mod:`.kiss`).
         labels : uint8 (N,), optional
             Class code per point; without labels every point is in the "other" group.
+        frame_time : float, optional
+            The instant the frame's pose refers to.
+        source : bool (N,), optional
+            The points registered (the ICP source, as :meth:`KissOdometry.register`); every
+            point still goes to the map. Default: every point.
+
+        Raises
+        ------
+        OdometryFailure
+            Non-finite pose, pose jump beyond the guard's bounds, ICP at its iteration limit.
         """
         from kiss_icp.voxelization import voxel_down_sample
 
-        pts = np.ascontiguousarray(points, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise ValueError(f"points must be (N, 3), got {pts.shape}")
-        codes = np.full(len(pts), L.UNCLASSIFIED, np.uint8) if labels is None else np.asarray(labels, np.uint8)
-        if codes.shape != (len(pts),):
-            raise ValueError(f"{codes.size} labels for {len(pts)} points")
-        stamps = deskew_stamps(times, len(pts))
+        raw = np.asarray(points)
+        if raw.ndim != 2 or raw.shape[1] != 3:
+            raise ValueError(f"points must be (N, 3), got {raw.shape}")
+        codes = np.full(len(raw), L.UNCLASSIFIED, np.uint8) if labels is None else np.asarray(labels, np.uint8)
+        if codes.shape != (len(raw),):
+            raise ValueError(f"{codes.size} labels for {len(raw)} points")
+        finite = np.isfinite(raw).all(axis=1)
+        if source is not None and np.shape(source) != (len(raw),):
+            raise ValueError(f"source mask of shape {np.shape(source)} for {len(raw)} points")
+        chosen = np.ones(int(finite.sum()), bool) if source is None else np.asarray(source, bool)[finite]
+        pts, times, dropped, t_ref, dt = self._prepare(raw, times, frame_time)
+        codes = codes[finite]
+        if not is_rigid(self.last_pose) or not is_rigid(self.last_delta):
+            raise OdometryFailure("the odometry state is not a finite rigid transform")
+        pts, stamps = self._deskew(pts, times, t_ref, self.last_delta)
         group = self.group_of[codes]
         downs, sources, src_groups = [], [], []
         for gi in range(len(GROUP_NAMES)):
             sel = group == gi
-            part = pts[sel]
+            part, reg = pts[sel], chosen[sel]
+            st = stamps[sel] if len(stamps) else stamps
             if len(part):
-                # KISS-ICP's preprocessing (range crop, constant-velocity deskewing) per group,
-                # so that the groups stay apart
-                part = self.preprocessor.preprocess(part, stamps[sel] if len(stamps) else stamps, self.last_delta)
+                # KISS-ICP's preprocessing (range crop; its own deskewing only with the "kiss"
+                # convention) per group, so that the groups stay apart
+                if not reg.all():
+                    reg_part = self.preprocessor.preprocess(part[reg], st[reg] if len(st) else st, self.last_delta)
+                part = self.preprocessor.preprocess(part, st, self.last_delta)
+                if reg.all():
+                    reg_part = part
+            else:
+                reg_part = part
             fd = voxel_down_sample(part, self.voxel * 0.5) if len(part) else np.zeros((0, 3))
-            src = voxel_down_sample(fd, self.voxel * 1.5) if len(fd) else np.zeros((0, 3))
+            if reg_part is part:
+                src = voxel_down_sample(fd, self.voxel * 1.5) if len(fd) else np.zeros((0, 3))
+            elif len(reg_part):
+                src = voxel_down_sample(voxel_down_sample(reg_part, self.voxel * 0.5), self.voxel * 1.5)
+            else:
+                src = np.zeros((0, 3))
             downs.append(fd.reshape(-1, 3))
             sources.append(src.reshape(-1, 3))
             src_groups.append(np.full(len(src), gi, dtype=np.int64))
         source = np.concatenate(sources)
         source_group = np.concatenate(src_groups)
         sigma = self.adaptive_threshold.get_threshold()
+        if not np.isfinite(sigma) or sigma <= 0:
+            raise OdometryFailure(f"adaptive threshold is {sigma}")
         initial = self.last_pose @ self.last_delta
         counts = np.zeros(len(GROUP_NAMES), np.int64)
         new_pose, iters = initial, 0
@@ -416,6 +486,10 @@ class ClassAwareOdometry:
                 source, source_group, self.weights, *self.map.index(), self.voxel, initial, 3.0 * sigma, sigma,
                 self.config.max_num_iterations, self.config.convergence_criterion,
             )  # fmt: skip
+        check_pose(new_pose, self.last_pose, dt, self.config.guard, "class-aware ICP")
+        if self.config.guard.fail_on_max_iterations and iters >= self.config.max_num_iterations:
+            raise OdometryFailure(f"class-aware ICP did not converge in {iters} iterations")
+        self._health(source, source_group, new_pose, sigma, dropped, int(iters), self.map)
         self.adaptive_threshold.update_model_deviation(np.linalg.inv(initial) @ new_pose)
         down = np.concatenate(downs)
         self.map.update(down, np.repeat(np.arange(len(GROUP_NAMES)), [len(d) for d in downs]), new_pose)

@@ -10,6 +10,7 @@ alike.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -17,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from prc_slam import evaluation as E
+from prc_slam import labels as L
 from prc_slam.config import Config
 from prc_slam.filtering import filter_points
 from prc_slam.odometry import classaware
@@ -26,28 +28,50 @@ from prc_slam.pipeline import ClassifiedFrame, classify_frames
 from prc_slam.prc.algorithm import warm_up
 from prc_slam.scan import Scan
 
-VARIANTS = ("raw", "prc", "prc+classaware")
+#: peer variants (issue 15, part 3): a filter of another method before the same KISS-ICP settings
+PEER_VARIANTS = ("sor", "ror", "patchwork")
+VARIANTS = ("raw", "prc", "prc+classaware", *PEER_VARIANTS)
 DEFAULT_VARIANTS = ("raw", "prc")
+
+
+#: stages timed per frame; ``health`` (the guard's residuals on a shadow map) is reported apart
+#: and not counted in ``ms_per_frame`` (it is monitoring, the same for every variant)
+STAGES = ("prc", "filter", "icp")
 
 
 @dataclass
 class VariantRun:
-    """Per-frame record of one variant."""
+    """Per-frame record of one variant. ``failed`` is ``{"frame", "reason"}`` once the variant
+    has stopped (its poses, times and counts cover the frames before)."""
 
     name: str
     odometry: KissOdometry | ClassAwareOdometry
-    ms: dict[str, list[float]] = field(default_factory=lambda: {"prc": [], "filter": [], "icp": []})
+    ms: dict[str, list[float]] = field(default_factory=lambda: {k: [] for k in STAGES})
     points_in: list[int] = field(default_factory=list)
     points_to_icp: list[int] = field(default_factory=list)
     counts_in: dict[str, int] = field(default_factory=dict)
     counts_kept: dict[str, int] = field(default_factory=dict)
+    failed: dict[str, Any] | None = None
 
     @property
     def poses(self) -> np.ndarray:
-        return np.array(self.odometry.poses)
+        return np.array(self.odometry.poses).reshape(-1, 4, 4)
+
+    @property
+    def frames(self) -> int:
+        return len(self.odometry.poses)
 
     def ms_per_frame(self) -> np.ndarray:
-        return np.sum([self.ms[k] for k in self.ms if self.ms[k]], axis=0)
+        n = self.frames
+        parts = [self.ms[k][:n] for k in STAGES if len(self.ms[k]) >= n and n]
+        return np.sum(parts, axis=0) if parts else np.zeros(0)
+
+    def first_suspicious(self) -> tuple[int, str] | None:
+        """Index and reason of the first frame flagged by the divergence detector."""
+        for i, h in enumerate(self.odometry.health):
+            if h.suspicious:
+                return i, h.why
+        return None
 
 
 @dataclass
@@ -64,6 +88,11 @@ class FrameRecord:
         """This frame's milliseconds per stage of ``variant``."""
         return {k: v[-1] for k, v in self.runs[variant].ms.items() if v}
 
+    def health(self, variant: str) -> dict[str, Any]:
+        """This frame's registration health of ``variant`` (``FrameHealth.as_dict``: inliers,
+        inlier_fraction, mean_residual_m, threshold_m, iterations, suspicious, why)."""
+        return self.runs[variant].odometry.health[-1].as_dict()
+
 
 @dataclass
 class CompareResult:
@@ -71,117 +100,157 @@ class CompareResult:
     gt_poses: np.ndarray | None
     times: np.ndarray
     names: list[str]
+    skipped: dict[str, str] = field(default_factory=dict)
 
     def estimate_in_world(self, name: str) -> np.ndarray:
-        """A variant's poses in the ground truth's world frame (started at its first pose)."""
+        """A variant's poses in the ground truth's world frame (started at its first pose); a
+        failed variant's cover the frames before its failure."""
         poses = self.runs[name].poses
-        return poses if self.gt_poses is None else self.gt_poses[0] @ poses
+        return poses if self.gt_poses is None or not len(poses) else self.gt_poses[0] @ poses
 
     def metrics(self) -> dict[str, Any]:
-        """The ``compare`` metrics JSON of DESIGN.md (plus per-stage times and class counts)."""
+        """The ``compare`` metrics JSON of DESIGN.md (plus per-stage times, class counts, the
+        per-frame health of every variant and, for a failed variant, where and why)."""
         out: dict[str, Any] = {}
         for name, run in self.runs.items():
+            n = run.frames
+            ms = run.ms_per_frame()
             m: dict[str, Any] = {
-                "frames": len(run.points_in),
-                "ms_per_frame": float(np.mean(run.ms_per_frame())),
-                "ms_per_frame_median": float(np.median(run.ms_per_frame())),
-                "points_in": float(np.mean(run.points_in)),
-                "points_to_icp": float(np.mean(run.points_to_icp)),
+                "frames": n,
+                "failed": run.failed is not None,
+                "ms_per_frame": float(np.mean(ms)) if n else None,
+                "ms_per_frame_median": float(np.median(ms)) if n else None,
+                "points_in": float(np.mean(run.points_in)) if n else None,
+                "points_to_icp": float(np.mean(run.points_to_icp)) if n else None,
                 "ms_per_stage": {k: float(np.mean(v)) for k, v in run.ms.items() if v},
+                "ms_health": float(np.mean(run.odometry.health_ms)) if run.odometry.health_ms else None,
+            }
+            if run.failed is not None:
+                m["failed_at_frame"] = run.failed["frame"]
+                m["failure_reason"] = run.failed["reason"]
+            health = run.odometry.health[:n]
+            flagged = [i for i, h in enumerate(health) if h.suspicious]
+            first = run.first_suspicious()
+            m["suspicious_frames"] = flagged
+            m["first_suspicious_frame"] = None if first is None else first[0]
+            m["first_suspicious_reason"] = None if first is None else first[1]
+            m["per_frame"] = {
+                "inliers": [h.inliers for h in health],
+                "source_points": [h.source_points for h in health],
+                "inlier_fraction": [h.inlier_fraction for h in health],
+                "mean_residual_m": [h.mean_residual_m for h in health],
+                "threshold_m": [h.threshold_m for h in health],
+                "iterations": [h.iterations for h in health],
+                "suspicious": [h.suspicious for h in health],
             }
             if run.counts_in:
                 m["points_in_per_class"] = run.counts_in
                 m["points_kept_per_class"] = run.counts_kept
-            if isinstance(run.odometry, ClassAwareOdometry):
-                per_frame = np.array(run.odometry.correspondences).reshape(-1, len(GROUP_NAMES))
+            if isinstance(run.odometry, ClassAwareOdometry) and n:
+                per_frame = np.array(run.odometry.correspondences[:n]).reshape(-1, len(GROUP_NAMES))
                 m["correspondences_per_group"] = {g: per_frame[:, i].tolist() for i, g in enumerate(GROUP_NAMES)}
                 m["correspondences_per_group_mean"] = {
                     g: float(per_frame[:, i].mean()) for i, g in enumerate(GROUP_NAMES)
                 }
-            if self.gt_poses is not None:
+            if self.gt_poses is not None and n:
                 est = self.estimate_in_world(name)
-                m["ate_rmse_m"] = E.ate_rmse(est, self.gt_poses)
-                m["rpe_trans_m"] = float(np.mean(E.rpe(est, self.gt_poses))) if len(est) > 1 else 0.0
-                m["kitti_trans_pct"], m["kitti_rot_deg_per_m"] = E.kitti_errors(est, self.gt_poses)
-                dist = np.linalg.norm(np.diff(self.gt_poses[:, :3, 3], axis=0), axis=1).sum()
+                gt = self.gt_poses[:n]
+                m["ate_rmse_m"] = E.ate_rmse(est, gt)
+                m["rpe_trans_m"] = float(np.mean(E.rpe(est, gt))) if n > 1 else 0.0
+                m["kitti_trans_pct"], m["kitti_rot_deg_per_m"] = E.kitti_errors(est, gt)
+                dist = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1).sum()
                 m["path_length_m"] = float(dist)
-            out[name] = m
-        return {"variants": out}
+            out[name] = _json_safe(m)
+        result: dict[str, Any] = {"variants": out}
+        if self.skipped:
+            result["skipped_variants"] = dict(self.skipped)
+        return result
 
 
-class OdometryVariants:
-    """The odometry variants as one pipeline stage: every frame is filtered and registered by each
-    variant in turn (so machine noise hits all variants alike).
+def _json_safe(v: Any) -> Any:
+    """NaN/inf -> None (strict JSON), recursively."""
+    if isinstance(v, float):
+        return v if np.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _json_safe(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_json_safe(x) for x in v]
+    return v
 
-    ``step(index, frame)`` takes a :class:`~prc_slam.pipeline.ClassifiedFrame` (PRC labels needed
-    by every variant but ``raw``) and returns the frame's :class:`FrameRecord`; ``result()`` the
-    :class:`CompareResult` so far.
-    """
 
-    def __init__(self, config: Config, variants: Iterable[str] = DEFAULT_VARIANTS) -> None:
-        variants = list(variants)
-        if not variants:
-            raise ValueError("--variants: give at least one variant")
-        unknown = [v for v in variants if v not in VARIANTS]
-        if unknown:
-            raise ValueError(f"--variants: unknown variants {unknown}; choose from {list(VARIANTS)}")
-        self.config = config
-        self.runs = {
-            v: VariantRun(
-                v,
-                ClassAwareOdometry(config.odometry, config.classaware)
-                if v == "prc+classaware"
-                else KissOdometry(config.odometry),
-            )
-            for v in variants
-        }
-        self.needs_prc = any(v != "raw" for v in variants)
-        warm_up()
-        if "prc+classaware" in variants:
-            classaware.warm_up()
-        self.gt: list[np.ndarray | None] = []
-        self.times: list[float] = []
-        self.names: list[str] = []
+def _peers():
+    """The peer filters (``prc_slam.peers``), or a clear error naming what is missing."""
+    try:
+        from prc_slam import peers
+    except ImportError as exc:  # the module or its package
+        raise PeerMissing(f"peer variants need prc_slam.peers ({exc})") from exc
+    return peers
 
-    def step(self, index: int, frame: ClassifiedFrame) -> FrameRecord:
-        """Filter and register one frame with every variant."""
-        config = self.config
-        scan = frame.scan
-        pts = scan.points()
-        t = scan.point_times()
-        kept: dict[str, np.ndarray] = {}
-        poses: dict[str, np.ndarray] = {}
-        labels = frame.point_labels() if self.needs_prc else None
-        for name, run in self.runs.items():
-            if name == "raw":
-                keep = np.ones(len(pts), dtype=bool)
-            else:
-                run.ms["prc"].append(frame.seconds * 1e3)
-                t0 = time.perf_counter()
-                res = filter_points(pts, labels, config.filter, frame.point_one_sided())
-                keep = res.keep
-                run.ms["filter"].append((time.perf_counter() - t0) * 1e3)
-                for k, n in res.counts_in.items():
-                    run.counts_in[k] = run.counts_in.get(k, 0) + n
-                for k, n in res.counts_kept.items():
-                    run.counts_kept[k] = run.counts_kept.get(k, 0) + n
-            t0 = time.perf_counter()
-            poses[name] = run.odometry.register(
-                pts[keep], None if t is None else t[keep], None if labels is None else labels[keep]
-            )
-            run.ms["icp"].append((time.perf_counter() - t0) * 1e3)
-            run.points_in.append(len(pts))
-            run.points_to_icp.append(int(keep.sum()))
-            kept[name] = keep
-        self.gt.append(scan.gt_pose)
-        self.times.append(scan.meta.get("frame_time", float(index)))
-        self.names.append(scan.name)
-        return FrameRecord(frame, index, kept, poses, self.runs)
 
-    def result(self) -> CompareResult:
-        gt = self.gt
-        gt_poses = np.array(gt) if gt and all(g is not None for g in gt) else None
-        return CompareResult(self.runs, gt_poses, np.asarray(self.times, dtype=float), self.names)
+class PeerMissing(RuntimeError):
+    """A peer variant cannot run here (module or package missing)."""
+
+
+def _check_peers(names: list[str]) -> dict[str, str]:
+    """Peer variants that cannot run here, with the reason (module or package missing)."""
+    if not names:
+        return {}
+    try:
+        peers = _peers()
+    except PeerMissing as exc:
+        return dict.fromkeys(names, str(exc))
+    probe = np.random.default_rng(0).uniform(-10, 10, (64, 3))
+    probe[:, 2] = np.abs(probe[:, 2]) * 0.1 - 1.7
+    skipped = {}
+    for name in names:
+        fn = {"sor": "statistical_outlier_keep", "ror": "radius_outlier_keep", "patchwork": "patchwork_ground"}[name]
+        try:
+            getattr(peers, fn)(probe)
+        except peers.PeerUnavailable as exc:
+            skipped[name] = str(exc)
+    return skipped
+
+
+def _select(name: str, pts: np.ndarray, labels: np.ndarray | None, frame: ClassifiedFrame, config: Config):
+    """The points ``name`` gives to registration: ``(keep, labels for the odometry, filter result
+    or None)``. Timed by the caller as the ``filter`` stage."""
+    if name == "raw":
+        return np.ones(len(pts), dtype=bool), None, None
+    if name in ("prc", "prc+classaware"):
+        res = filter_points(pts, labels, config.filter, frame.point_one_sided())
+        return res.keep, labels, res
+    peers = _peers()
+    if name == "sor":
+        return np.asarray(peers.statistical_outlier_keep(pts), dtype=bool), None, None
+    if name == "ror":
+        return np.asarray(peers.radius_outlier_keep(pts), dtype=bool), None, None
+    if name == "patchwork":
+        # Patchwork++'s ground treated as the prc variant treats PRC ground (thinned the same way)
+        ground = np.asarray(peers.patchwork_ground(pts), dtype=bool)
+        codes = np.where(ground, L.GROUND, L.UNCLASSIFIED).astype(np.uint8)
+        res = filter_points(pts, codes, config.filter)
+        return res.keep, codes, res
+    raise ValueError(f"unknown variant {name!r}")
+
+
+def _warm_up_kernels(config: Config) -> None:
+    """Compile (or load) the numba kernels of the filter, the deskewing and the guard before
+    anything is timed."""
+    from prc_slam.odometry.classaware import GroupVoxelMap
+    from prc_slam.odometry.guard import residuals
+    from prc_slam.odometry.kiss import deskew_points
+
+    pts = np.random.default_rng(0).uniform(-5, 5, (64, 3))
+    filter_points(pts, np.full(64, L.GROUND, np.uint8), config.filter)
+    deskew_points(pts, np.linspace(0, 0.1, 64), 0.05, 0.1, np.eye(4))
+    gmap = GroupVoxelMap(1.0, 100.0, 20)
+    gmap.update(pts, np.zeros(64, np.int64), np.eye(4))
+    residuals(pts, np.zeros(64, np.int64), *gmap.index(), 1.0, 1.0, np.eye(4))
+
+
+def _frame_time(scan: Scan) -> float | None:
+    t = scan.meta.get("frame_time")
+    return None if t is None else float(t)
 
 
 def run_compare(
@@ -190,11 +259,87 @@ def run_compare(
     variants: Iterable[str] = DEFAULT_VARIANTS,
     on_frame: Callable[[FrameRecord], None] | None = None,
 ) -> CompareResult:
-    """Run every variant over ``scans`` in one pass (PRC first when a variant needs it)."""
-    stage = OdometryVariants(config, variants)
-    frames = classify_frames(scans, config.prc) if stage.needs_prc else (ClassifiedFrame(s, None, 0.0) for s in scans)
+    """Run every variant over ``scans`` in one pass.
+
+    A variant whose odometry fails (non-finite pose, pose jump beyond the guard's bounds, ICP not
+    converged, or any error inside it) stops at that frame with the reason in ``failed``; the
+    other variants go on, unaffected. A peer variant whose package is missing is left out with a
+    warning (``CompareResult.skipped``)."""
+    variants = list(variants)
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:
+        raise ValueError(f"unknown variants {unknown}; choose from {list(VARIANTS)}")
+    skipped = _check_peers([v for v in variants if v in PEER_VARIANTS])
+    if skipped:
+        warnings.warn("; ".join(f"skipping {v}: {why}" for v, why in skipped.items()), stacklevel=2)
+    variants = [v for v in variants if v not in skipped]
+    runs = {
+        v: VariantRun(
+            v,
+            ClassAwareOdometry(config.odometry, config.classaware)
+            if v == "prc+classaware"
+            else KissOdometry(config.odometry),
+        )
+        for v in variants
+    }
+    warm_up()
+    _warm_up_kernels(config)
+    if "prc+classaware" in variants:
+        try:
+            classaware.warm_up()
+        except Exception:  # compilation only; a broken odometry fails its variant on the first frame
+            pass
+    gt, times, names = [], [], []
+    needs_prc = any(v in ("prc", "prc+classaware") for v in variants)
+    frames = classify_frames(scans, config.prc) if needs_prc else (ClassifiedFrame(s, None, 0.0) for s in scans)
     for i, frame in enumerate(frames):
-        record = stage.step(i, frame)
-        if on_frame is not None:
-            on_frame(record)
-    return stage.result()
+        scan = frame.scan
+        pts = scan.points()
+        t = scan.point_times()
+        frame_time = _frame_time(scan)
+        kept: dict[str, np.ndarray] = {}
+        poses: dict[str, np.ndarray] = {}
+        labels = frame.point_labels() if needs_prc else None
+        for name, run in runs.items():
+            if run.failed is not None:
+                continue
+            try:
+                if name in ("prc", "prc+classaware"):
+                    run.ms["prc"].append(frame.seconds * 1e3)
+                t0 = time.perf_counter()
+                keep, codes, res = _select(name, pts, labels, frame, config)
+                if name != "raw":
+                    run.ms["filter"].append((time.perf_counter() - t0) * 1e3)
+                t0 = time.perf_counter()
+                extra = {}
+                if res is not None and res.source is not None:
+                    extra["source"] = res.source[keep]  # PRC chooses what is registered
+                pose = run.odometry.register(
+                    pts[keep], None if t is None else t[keep], None if codes is None else codes[keep], frame_time,
+                    **extra,
+                )  # fmt: skip
+                run.ms["icp"].append((time.perf_counter() - t0) * 1e3)
+            except Exception as exc:  # one variant's failure must not end the others
+                reason = getattr(exc, "reason", None) or f"{type(exc).__name__}: {exc}"
+                run.failed = {"frame": i, "reason": reason}
+                for k in run.ms:  # stage times of the frames with a pose only
+                    del run.ms[k][run.frames :]
+                continue
+            poses[name] = pose
+            if res is not None:
+                for k, n in res.counts_in.items():
+                    run.counts_in[k] = run.counts_in.get(k, 0) + n
+                for k, n in res.counts_kept.items():
+                    run.counts_kept[k] = run.counts_kept.get(k, 0) + n
+            run.points_in.append(len(pts))
+            run.points_to_icp.append(int(keep.sum()))
+            kept[name] = keep
+        gt.append(scan.gt_pose)
+        times.append(frame_time if frame_time is not None else float(i))
+        names.append(scan.name)
+        if on_frame is not None and poses:
+            on_frame(FrameRecord(frame, i, kept, poses, runs))
+        if all(r.failed is not None for r in runs.values()):
+            break
+    gt_poses = np.array(gt) if gt and all(g is not None for g in gt) else None
+    return CompareResult(runs, gt_poses, np.asarray(times, dtype=float), names, skipped)

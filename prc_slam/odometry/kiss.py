@@ -4,15 +4,42 @@ KISS-ICP's ``KISSConfig`` is a pydantic-settings model that reads ``kiss_icp_*``
 variables; the adapter builds it with every section given explicitly and those variables
 hidden, so runs do not depend on the caller's shell. ``voxel_size`` defaults to
 ``max_range / 100`` as in KISS-ICP's own ``load_config``.
+
+Time convention (issue 16, part 4). KISS-ICP's own deskewing normalises the stamps it is given
+to [0, 1] over the points' min and max and moves every point to the instant of the *last* point
+(``exp((s - 1) log(delta))``), so its pose is the pose at the end of the points' time span,
+and a sweep whose points cover part of the period (a sector, a filtered frame) is stretched
+over a whole frame of motion. Our datasets give each frame's pose at the frame's *reference
+time* (``scan.meta["frame_time"]``: the simulator's mid-sweep, KITTI's ``times.txt``). The
+adapter therefore deskews itself (:func:`deskew_points`), with the constant-velocity model of
+KISS-ICP: point ``i`` at time ``t_i`` is moved by ``exp(((t_i - t_ref) / dt) log(delta))``,
+``delta`` being the motion between the last two frames and ``dt`` the time between their
+reference instants; the deskewed frame goes to KISS-ICP without stamps. The returned pose is the
+pose at ``t_ref``, whatever the spin direction, the sweep's start or the points' time span.
+``deskew_convention="kiss"`` keeps KISS-ICP's own (end of the span) behaviour for comparison.
 """
 
 from __future__ import annotations
 
 import os
+import time
 from contextlib import contextmanager
+from typing import Literal
 
 import numpy as np
+from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
+
+from prc_slam.odometry.guard import (
+    DivergenceMonitor,
+    FrameHealth,
+    GuardConfig,
+    OdometryFailure,
+    check_pose,
+    finite_points,
+    is_rigid,
+    residuals,
+)
 
 
 class OdometryConfig(BaseModel):
@@ -30,6 +57,12 @@ class OdometryConfig(BaseModel):
     max_num_iterations: int = Field(500, ge=1)
     convergence_criterion: float = Field(1e-4, gt=0)
     max_num_threads: int = Field(0, ge=0, description="0: automatic")
+    deskew_convention: Literal["reference", "kiss"] = Field(
+        "reference",
+        description="reference: poses at each frame's reference time, deskewed by the adapter with the real "
+        "per-point times; kiss: KISS-ICP's own deskewing (stamps normalised over the frame, pose at the last point)",
+    )
+    guard: GuardConfig = Field(default_factory=GuardConfig)
 
 
 @contextmanager
@@ -66,8 +99,9 @@ def kiss_config(config: OdometryConfig):
 
 
 def deskew_stamps(times: np.ndarray | None, n: int) -> np.ndarray:
-    """Per-point times normalised to [0, 1] over the frame for KISS-ICP's deskewing; an empty
-    array (KISS-ICP's "do not deskew") without times for every point."""
+    """Per-point times normalised to [0, 1] over the frame for KISS-ICP's own deskewing (its
+    ``deskew_convention="kiss"``); an empty array (KISS-ICP's "do not deskew") without times for
+    every point."""
     if times is None or len(times) != n or n == 0:
         return np.zeros(0)
     t = np.asarray(times, dtype=np.float64)
@@ -75,43 +109,306 @@ def deskew_stamps(times: np.ndarray | None, n: int) -> np.ndarray:
     return (t - t.min()) / span if span > 0 else np.full(n, 0.5)
 
 
-class KissOdometry:
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """Twist ``(rho, omega)`` (translation first, as Sophus) of a rigid 4x4 transform."""
+    R, t = T[:3, :3], T[:3, 3]
+    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    theta = float(np.arccos(cos))
+    vee = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if theta < 1e-8:
+        w = 0.5 * vee
+    elif np.pi - theta < 1e-6:  # near pi: the axis from the symmetric part
+        axis = np.sqrt(np.maximum((np.diag(R) + 1.0) / 2.0, 0.0))
+        axis *= np.where(vee >= 0, 1.0, -1.0)
+        w = theta * axis / max(np.linalg.norm(axis), 1e-12)
+    else:
+        w = theta / (2.0 * np.sin(theta)) * vee
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if theta < 1e-8:
+        V_inv = np.eye(3) - 0.5 * K
+    else:
+        V_inv = np.eye(3) - 0.5 * K + (1.0 / theta**2) * (1.0 - theta * np.sin(theta) / (2.0 * (1.0 - cos))) * (K @ K)
+    return np.concatenate([V_inv @ t, w])
+
+
+@njit(cache=True, nogil=True)
+def _deskew_kernel(points, s, xi):
+    """``exp(s_i xi) p_i`` for every point (Rodrigues and the SE(3) left Jacobian, scalar code)."""
+    n = points.shape[0]
+    out = np.empty((n, 3))
+    for i in range(n):
+        si = s[i]
+        rx, ry, rz = si * xi[0], si * xi[1], si * xi[2]
+        wx, wy, wz = si * xi[3], si * xi[4], si * xi[5]
+        th2 = wx * wx + wy * wy + wz * wz
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        if th2 < 1e-16:
+            a, b, c = 1.0, 0.5, 1.0 / 6.0
+        else:
+            th = np.sqrt(th2)
+            a = np.sin(th) / th
+            b = (1.0 - np.cos(th)) / th2
+            c = (1.0 - a) / th2
+        # R p = p + a (w x p) + b w x (w x p)
+        cx, cy, cz = wy * pz - wz * py, wz * px - wx * pz, wx * py - wy * px
+        ccx, ccy, ccz = wy * cz - wz * cy, wz * cx - wx * cz, wx * cy - wy * cx
+        # V rho = rho + b (w x rho) + c w x (w x rho)
+        dx, dy, dz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx
+        ddx, ddy, ddz = wy * dz - wz * dy, wz * dx - wx * dz, wx * dy - wy * dx
+        out[i, 0] = px + a * cx + b * ccx + rx + b * dx + c * ddx
+        out[i, 1] = py + a * cy + b * ccy + ry + b * dy + c * ddy
+        out[i, 2] = pz + a * cz + b * ccz + rz + b * dz + c * ddz
+    return out
+
+
+def deskew_points(points: np.ndarray, times: np.ndarray, t_ref: float, dt: float, delta: np.ndarray) -> np.ndarray:
+    """Motion-compensate a frame to its reference instant with a constant velocity.
+
+    Parameters
+    ----------
+    points : float (N, 3)
+        Sensor-frame points, each measured at ``times[i]`` (s).
+    t_ref : float
+        The instant the frame's pose refers to.
+    dt : float
+        Seconds over which the sensor moved by ``delta``.
+    delta : float (4, 4)
+        Relative motion over ``dt`` (the previous frame's pose to this one's, in the previous
+        sensor frame), the constant-velocity model of KISS-ICP.
+
+    Returns
+    -------
+    float (N, 3)
+        ``exp(((t_i - t_ref) / dt) log(delta)) p_i``: every point in the sensor frame at ``t_ref``.
+    """
+    s = (np.asarray(times, dtype=np.float64) - t_ref) / dt
+    return _deskew_kernel(np.ascontiguousarray(points, dtype=np.float64), s, se3_log(delta))
+
+
+#: fewer correspondences than this at the initial guess: the frame cannot be registered
+MIN_CORRESPONDENCES = 6
+
+
+class FrameClock:
+    """Reference time and deskewing interval of successive frames.
+
+    The reference time is the frame's own (``frame_time``), else the middle of its points' time
+    span, else the previous one plus the last interval (0.1 s at first, said in ``assumed``). The
+    deskew interval is the time between the last two reference instants, the interval over which
+    the constant-velocity ``delta`` was observed."""
+
+    def __init__(self) -> None:
+        self.times: list[float] = []
+        self.assumed = False
+
+    def next(self, frame_time: float | None, times: np.ndarray | None) -> float:
+        if frame_time is not None and np.isfinite(frame_time):
+            t = float(frame_time)
+        elif times is not None and len(times):
+            t = 0.5 * (float(np.min(times)) + float(np.max(times)))
+        else:
+            self.assumed = True
+            t = self.times[-1] + self.last_interval() if self.times else 0.0
+        if self.times and t <= self.times[-1]:
+            raise OdometryFailure(f"frame time {t:.6f} s does not follow the previous {self.times[-1]:.6f} s")
+        self.times.append(t)
+        return t
+
+    def last_interval(self) -> float:
+        """Seconds between the last two frames (0.1 s before there are two)."""
+        return self.times[-1] - self.times[-2] if len(self.times) >= 2 else 0.1
+
+    def deskew_interval(self) -> float:
+        """Seconds between the two frames before the newest one (the interval of ``delta``)."""
+        return self.times[-2] - self.times[-3] if len(self.times) >= 3 else self.last_interval()
+
+
+class GuardedOdometry:
+    """What both odometries share: checked inputs, the frame clock, the adapter's deskewing and
+    the per-frame health (:mod:`prc_slam.odometry.guard`)."""
+
+    config: OdometryConfig
+
+    def _init_guard(self) -> None:
+        self.poses: list[np.ndarray] = []
+        self.health: list[FrameHealth] = []
+        self.health_ms: list[float] = []
+        self.clock = FrameClock()
+        self.monitor = DivergenceMonitor(self.config.guard)
+        self._pending_ms = 0.0  # guard time spent before the health of the frame is recorded
+
+    def _prepare(
+        self, points: np.ndarray, times: np.ndarray | None, frame_time: float | None
+    ) -> tuple[np.ndarray, np.ndarray | None, int, float, float]:
+        """Checked, finite points and times; the frame's reference time and the pose-jump interval."""
+        pts = np.asarray(points)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must be (N, 3), got {pts.shape}")
+        if times is not None and np.shape(times) != (len(pts),):
+            times = None
+        pts, times, dropped = finite_points(pts, times)
+        pts = np.ascontiguousarray(pts, dtype=np.float64)
+        t_ref = self.clock.next(frame_time, times)
+        return pts, times, dropped, t_ref, self.clock.last_interval()
+
+    def _deskew(self, pts, times, t_ref, last_delta):
+        """Deskewed points and the stamps to give KISS-ICP's preprocessor (empty: none)."""
+        if not self.config.deskew or times is None or len(pts) == 0:
+            return pts, np.zeros(0)
+        if self.config.deskew_convention == "kiss":
+            return pts, deskew_stamps(times, len(pts))
+        if not is_rigid(last_delta):
+            raise OdometryFailure("the constant-velocity motion is not a finite rigid transform")
+        return deskew_points(pts, times, t_ref, self.clock.deskew_interval(), last_delta), np.zeros(0)
+
+    def _health(self, source, groups, pose, sigma, dropped, iterations, gmap) -> FrameHealth:
+        t0 = time.perf_counter()
+        h = FrameHealth(source_points=len(source), threshold_m=float(sigma), iterations=iterations,
+                        dropped_nonfinite=dropped)  # fmt: skip
+        if gmap.n and len(source):
+            h.inliers, h.mean_residual_m = residuals(
+                source, groups, *gmap.index(), 1.0 / gmap.voxel, (3.0 * sigma) ** 2, pose
+            )  # fmt: skip
+        else:
+            h.inliers, h.source_points = 0, 0  # no map yet: nothing to judge
+        self.monitor.update(h)
+        self.health.append(h)
+        self.health_ms.append((time.perf_counter() - t0) * 1e3 + self._pending_ms)
+        self._pending_ms = 0.0
+        return h
+
+
+class KissOdometry(GuardedOdometry):
     """Frame-to-map odometry with KISS-ICP; poses start at the identity.
+
+    KISS-ICP's steps (``KissICP.register_frame``: preprocess, voxelise, register, update
+    threshold and map) with the adapter's deskewing (module docstring), guards before anything
+    reaches KISS-ICP's C++ (which aborts the process on a NaN) and after (non-finite pose, pose
+    jump beyond :class:`~prc_slam.odometry.guard.GuardConfig`'s bounds: :class:`OdometryFailure`,
+    the state left as before the frame), and the frame's health (ICP inliers and mean residual
+    at the final pose on a shadow copy of the voxel map, threshold, divergence flag).
 
     Parameters
     ----------
     config : OdometryConfig
     """
 
+    name = "KISS-ICP"
+
     def __init__(self, config: OdometryConfig | None = None) -> None:
         from kiss_icp.kiss_icp import KissICP
 
         self.config = config or OdometryConfig()
         self.kiss = KissICP(kiss_config(self.config))
-        self.poses: list[np.ndarray] = []
+        self.voxel = self.kiss.config.mapping.voxel_size
+        self._init_guard()
+        self._shadow = None
+        self.deskewed = np.zeros((0, 3))
+
+    # ---- KISS-ICP ----
 
     def register(
-        self, points: np.ndarray, times: np.ndarray | None = None, labels: np.ndarray | None = None
+        self,
+        points: np.ndarray,
+        times: np.ndarray | None = None,
+        labels: np.ndarray | None = None,
+        frame_time: float | None = None,
+        source: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Register one frame and return its pose (4x4, world = first frame).
+        """Register one frame and return its pose (4x4, world = first frame) at the frame's
+        reference time.
 
         Parameters
         ----------
         points : float (N, 3)
-            Sensor-frame points, not modified.
+            Sensor-frame points, not modified. Points with a non-finite coordinate are left out
+            (counted in the frame's health).
         times : float (N,), optional
-            Acquisition time per point (s); normalised to [0, 1] over the frame for KISS-ICP's
-            deskewing. Without times (or with ``deskew`` off) the frame is not deskewed.
+            Acquisition time per point (s), for deskewing. Without times (or with ``deskew``
+            off) the frame is not deskewed.
         labels : ignored
             (The class-aware odometry's signature.)
+        frame_time : float, optional
+            The instant the frame's pose refers to (s, the clock of ``times``); default: the
+            middle of the points' time span.
+        source : bool (N,), optional
+            The points KISS-ICP registers (its source, voxelised by KISS-ICP at 1.5 voxel sizes
+            as usual); all points still go to the map (voxelised at 0.5 voxel sizes). Default:
+            every point, which is KISS-ICP's own ``register_frame``.
+
+        Raises
+        ------
+        OdometryFailure
+            Non-finite pose, pose jump beyond the guard's bounds, or non-monotonic frame times.
         """
-        pts = np.ascontiguousarray(points, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise ValueError(f"points must be (N, 3), got {pts.shape}")
-        self.kiss.register_frame(pts, deskew_stamps(times, len(pts)))
-        pose = self.kiss.last_pose.copy()
+        from prc_slam.odometry.classaware import GroupVoxelMap
+
+        kiss = self.kiss
+        if source is not None:
+            source = np.asarray(source, dtype=bool)
+            if source.shape != (len(points),):
+                raise ValueError(f"source mask of shape {source.shape} for {len(points)} points")
+            source = source[np.isfinite(np.asarray(points)).all(axis=1)]
+        pts, times, dropped, t_ref, dt = self._prepare(points, times, frame_time)
+        if not is_rigid(kiss.last_pose) or not is_rigid(kiss.last_delta):
+            raise OdometryFailure("the odometry state is not a finite rigid transform")
+        pts, stamps = self._deskew(pts, times, t_ref, kiss.last_delta)
+        self.deskewed = pts  # the frame as registered (sensor frame at the reference time)
+        frame = kiss.preprocessor.preprocess(pts, stamps, kiss.last_delta)
+        if source is None or source.all():
+            source, frame_downsample = kiss.voxelize(frame)
+        else:
+            from kiss_icp.voxelization import voxel_down_sample
+
+            frame_downsample = voxel_down_sample(frame, self.voxel * 0.5)
+            chosen_stamps = stamps[source] if len(stamps) else stamps
+            chosen = kiss.preprocessor.preprocess(pts[source], chosen_stamps, kiss.last_delta)
+            source = kiss.voxelize(chosen)[0] if len(chosen) else np.zeros((0, 3))
+        sigma = kiss.adaptive_threshold.get_threshold()
+        initial_guess = kiss.last_pose @ kiss.last_delta
+        if not np.isfinite(sigma) or sigma <= 0:
+            raise OdometryFailure(f"adaptive threshold is {sigma}")
+        if self._shadow is None:
+            self._shadow = GroupVoxelMap(self.voxel, self.config.max_range, self.config.max_points_per_voxel)
+        self._check_correspondences(source, initial_guess, sigma)
+        new_pose = np.asarray(
+            kiss.registration.align_points_to_map(
+                points=source,
+                voxel_map=kiss.local_map,
+                initial_guess=initial_guess,
+                max_correspondance_distance=3 * sigma,
+                kernel=sigma,
+            )
+        )
+        check_pose(new_pose, kiss.last_pose, dt, self.config.guard, "KISS-ICP")
+        self._health(source, np.zeros(len(source), np.int64), new_pose, sigma, dropped, -1, self._shadow)
+        kiss.adaptive_threshold.update_model_deviation(np.linalg.inv(initial_guess) @ new_pose)
+        kiss.local_map.update(frame_downsample, new_pose)
+        t0 = time.perf_counter()
+        self._shadow.update(frame_downsample, np.zeros(len(frame_downsample), np.int64), new_pose)
+        self.health_ms[-1] += (time.perf_counter() - t0) * 1e3
+        kiss.last_delta = np.linalg.inv(kiss.last_pose) @ new_pose
+        kiss.last_pose = new_pose
+        pose = new_pose.copy()
         self.poses.append(pose)
-        return pose
+        return pose.copy()
+
+    def _check_correspondences(self, source: np.ndarray, guess: np.ndarray, sigma: float) -> None:
+        """KISS-ICP solves its normal equations without a rank check, and a NaN from them aborts
+        the process (``SOPHUS_ENSURE``): with a map, refuse a source that has fewer than
+        ``MIN_CORRESPONDENCES`` map points within 3 sigma at the initial guess."""
+        if not self._shadow.n:
+            return
+        t0 = time.perf_counter()
+        n, _ = residuals(
+            source, np.zeros(len(source), np.int64), *self._shadow.index(), 1.0 / self.voxel, (3.0 * sigma) ** 2, guess
+        )  # fmt: skip
+        self._pending_ms = (time.perf_counter() - t0) * 1e3
+        if n < MIN_CORRESPONDENCES:
+            raise OdometryFailure(
+                f"only {n} of {len(source)} source points have a map point within 3 sigma ({3 * sigma:.2f} m) "
+                "of the predicted pose: registration impossible"
+            )
 
     def local_map_points(self) -> np.ndarray:
         """Points of KISS-ICP's voxel map (world frame = first frame), ``float64[M, 3]``."""
@@ -121,3 +418,6 @@ class KissOdometry:
     def threshold(self) -> float:
         """KISS-ICP's current adaptive correspondence threshold (sigma)."""
         return float(self.kiss.adaptive_threshold.get_threshold())
+
+
+__all__ = ["GuardConfig", "KissOdometry", "OdometryConfig", "OdometryFailure", "deskew_points", "kiss_config"]

@@ -181,6 +181,8 @@ class RerunSink:
         if index % self.config.every:
             return
         self.rec.log("range_image/online", rr.SegmentationImage(result.labels))
+        if result.car_instances is not None:
+            self.rec.log("range_image/car_instances", rr.SegmentationImage(np.asarray(result.car_instances)))
         ids = scan.per_point(result.labels).astype(np.uint16)
         self.rec.log("world/sensor/online", rr.Points3D(scan.points(), class_ids=ids, radii=0.03))
         pose = np.eye(4) if pose is None else pose
@@ -234,6 +236,11 @@ class RerunSink:
             for stage, ms in record.ms(name).items():
                 self.rec.log(f"metrics/ms/{name}/{stage}", rr.Scalars(ms))
             self.rec.log(f"metrics/icp_threshold/{name}", rr.Scalars(record.runs[name].odometry.threshold))
+            if hasattr(record, "health"):  # registration health and the divergence flag (issue 16)
+                h = record.health(name)
+                for key in ("inliers", "inlier_fraction", "mean_residual_m", "suspicious"):
+                    if h[key] is not None and np.isfinite(float(h[key])):
+                        self.rec.log(f"metrics/icp/{name}/{key}", rr.Scalars(float(h[key])))
         if full:
             self._log_trajectories(main)
             self._log_clouds(record, main, world_from_first)

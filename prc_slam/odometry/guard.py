@@ -1,0 +1,211 @@
+"""Guards and health of a running odometry: never hand KISS-ICP a non-finite number, stop a
+variant whose pose is non-finite or jumps beyond a physical bound, and flag frames where the
+registration looks like it is going wrong (issue 16, parts 1 and 2).
+
+A failure (:class:`OdometryFailure`) stops one variant at one frame with a reason; the caller
+(:func:`prc_slam.odometry.compare.run_compare`) records it and goes on with the other variants.
+A *suspicious* frame is only flagged: its ICP inlier fraction, mean residual or adaptive
+threshold left its running level by more than ``divergence_factor`` (without ground truth this is
+how a user learns that a run went wrong, and where).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numba import njit
+from pydantic import BaseModel, ConfigDict, Field
+
+from prc_slam.voxels import find
+
+
+class OdometryFailure(RuntimeError):
+    """A variant cannot go on: non-finite pose, pose jump beyond the physical bound, or an ICP
+    that did not converge. ``reason`` is a one-line explanation."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+class GuardConfig(BaseModel):
+    """Physical bounds of the platform and the divergence detector (same for every variant)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    max_speed: float = Field(70.0, gt=0, description="m/s; a faster frame-to-frame translation is a failure")
+    max_angular_rate: float = Field(
+        3.0, gt=0, description="rad/s; a faster frame-to-frame rotation is a failure (172 deg/s)"
+    )
+    fail_on_max_iterations: bool = Field(
+        True, description="an ICP that ends at its iteration limit fails the variant (where the ICP reports it)"
+    )
+    divergence_factor: float = Field(
+        3.0,
+        gt=1,
+        description="flag a frame whose residual/threshold exceeds (or inlier fraction falls below) "
+        "its running median by this factor",
+    )
+    window: int = Field(20, ge=3, description="frames of the running median")
+    warm_up: int = Field(5, ge=1, description="frames before the divergence detector starts")
+
+
+# ---- consistency of inputs and poses ---------------------------------------------------------
+
+
+def finite_points(points: np.ndarray, times: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """Drop points (and their times) with a non-finite coordinate; times that are not all finite
+    are discarded (no deskewing of that frame). Returns ``(points, times, n_dropped)``."""
+    ok = np.isfinite(points).all(axis=1)
+    dropped = int(len(points) - ok.sum())
+    if dropped:
+        points = points[ok]
+        times = None if times is None else np.asarray(times)[ok]
+    if times is not None and not np.isfinite(times).all():
+        times = None
+    return points, times, dropped
+
+
+def is_rigid(T: np.ndarray, tol: float = 1e-3) -> bool:
+    """``T`` is a finite 4x4 rigid transform (orthonormal rotation, det +1, last row 0 0 0 1)."""
+    T = np.asarray(T)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        return False
+    R = T[:3, :3]
+    return bool(
+        np.abs(R.T @ R - np.eye(3)).max() < tol
+        and abs(np.linalg.det(R) - 1.0) < tol
+        and np.abs(T[3] - [0, 0, 0, 1]).max() < tol
+    )
+
+
+def rotation_angle(R: np.ndarray) -> float:
+    """Angle (rad) of a rotation matrix."""
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def check_pose(new_pose: np.ndarray, last_pose: np.ndarray, dt: float, config: GuardConfig, what: str) -> None:
+    """Raise :class:`OdometryFailure` unless ``new_pose`` is a finite rigid transform within the
+    physical bounds (``max_speed``, ``max_angular_rate`` over ``dt`` seconds) of ``last_pose``."""
+    if not np.isfinite(new_pose).all():
+        raise OdometryFailure(f"{what} returned a non-finite pose")
+    if not is_rigid(new_pose):
+        raise OdometryFailure(f"{what} returned a transform that is not rigid")
+    delta = np.linalg.inv(last_pose) @ new_pose
+    dist = float(np.linalg.norm(delta[:3, 3]))
+    angle = rotation_angle(delta[:3, :3])
+    if dist > config.max_speed * dt:
+        raise OdometryFailure(f"pose jump of {dist:.2f} m in {dt:.3f} s (bound {config.max_speed:g} m/s x {dt:.3f} s)")
+    if angle > config.max_angular_rate * dt:
+        raise OdometryFailure(
+            f"pose jump of {np.degrees(angle):.1f} deg in {dt:.3f} s "
+            f"(bound {np.degrees(config.max_angular_rate):.0f} deg/s x {dt:.3f} s)"
+        )
+
+
+# ---- residuals of a registration ---------------------------------------------------------------
+
+
+@njit(cache=True, nogil=True)
+def residuals(src, src_group, table, coords, first, count, mpts, inv_voxel, max_d2, T):
+    """Inliers and their mean distance: each source point (sensor frame, moved by ``T``) to its
+    nearest map point of its group within ``sqrt(max_d2)`` (the 27 voxels around it, the search
+    of KISS-ICP's correspondences). Map layout of :class:`~prc_slam.odometry.classaware.GroupVoxelMap`.
+
+    Returns
+    -------
+    inliers : int
+    mean_distance : float
+        NaN without inliers.
+    """
+    R = T[:3, :3]
+    t = T[:3, 3]
+    n_in = 0
+    total = 0.0
+    p = np.empty(3)
+    for i in range(src.shape[0]):
+        for k in range(3):
+            p[k] = R[k, 0] * src[i, 0] + R[k, 1] * src[i, 1] + R[k, 2] * src[i, 2] + t[k]
+        kx = np.int64(np.floor(p[0] * inv_voxel))
+        ky = np.int64(np.floor(p[1] * inv_voxel))
+        kz = np.int64(np.floor(p[2] * inv_voxel))
+        g = src_group[i]
+        best = max_d2
+        found = False
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    v = find(table, coords, kx + dx, ky + dy, (kz + dz) * 8 + g)
+                    if v < 0:
+                        continue
+                    for q in range(first[v], first[v] + count[v]):
+                        d2 = (mpts[q, 0] - p[0]) ** 2 + (mpts[q, 1] - p[1]) ** 2 + (mpts[q, 2] - p[2]) ** 2
+                        if d2 < best:
+                            best = d2
+                            found = True
+        if found:
+            n_in += 1
+            total += np.sqrt(best)
+    return n_in, (total / n_in if n_in else np.nan)
+
+
+# ---- per-frame health and the divergence detector ------------------------------------------------
+
+
+@dataclass
+class FrameHealth:
+    """One frame of one variant: ICP inliers (source points with a map point within 3 sigma at the
+    final pose), their mean distance, the adaptive threshold sigma, ICP iterations (-1: not
+    reported), points dropped as non-finite, and the divergence flag with its reason."""
+
+    source_points: int = 0
+    inliers: int = 0
+    mean_residual_m: float = float("nan")
+    threshold_m: float = float("nan")
+    iterations: int = -1
+    dropped_nonfinite: int = 0
+    suspicious: bool = False
+    why: str = ""
+
+    @property
+    def inlier_fraction(self) -> float:
+        return self.inliers / self.source_points if self.source_points else float("nan")
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d["inlier_fraction"] = self.inlier_fraction
+        return d
+
+
+class DivergenceMonitor:
+    """Flags a frame whose mean residual or threshold jumps above ``divergence_factor`` times its
+    running median over the last ``window`` frames, or whose inlier fraction falls below the
+    running median divided by that factor (after ``warm_up`` frames)."""
+
+    def __init__(self, config: GuardConfig) -> None:
+        self.config = config
+        self.history: dict[str, deque] = {k: deque(maxlen=config.window) for k in ("res", "thr", "frac")}
+
+    def update(self, health: FrameHealth) -> FrameHealth:
+        c = self.config
+        values = {"res": health.mean_residual_m, "thr": health.threshold_m, "frac": health.inlier_fraction}
+        reasons = []
+        if len(self.history["res"]) >= c.warm_up:
+            level = {}
+            for k, h in self.history.items():
+                arr = np.asarray(h, dtype=float)
+                level[k] = float(np.nanmedian(arr)) if np.isfinite(arr).any() else np.nan
+            if np.isfinite(values["res"]) and values["res"] > c.divergence_factor * level["res"]:
+                reasons.append(f"mean residual {values['res']:.3f} m > {c.divergence_factor:g} x {level['res']:.3f} m")
+            if np.isfinite(values["thr"]) and values["thr"] > c.divergence_factor * level["thr"]:
+                reasons.append(f"threshold {values['thr']:.3f} m > {c.divergence_factor:g} x {level['thr']:.3f} m")
+            frac = values["frac"]
+            if health.source_points and (not np.isfinite(frac) or frac < level["frac"] / c.divergence_factor):
+                reasons.append(f"inlier fraction {frac:.2f} < {level['frac']:.2f} / {c.divergence_factor:g}")
+        for k, v in values.items():
+            self.history[k].append(v)
+        health.suspicious = bool(reasons)
+        health.why = "; ".join(reasons)
+        return health

@@ -1,0 +1,184 @@
+"""Guards, health and failure isolation of the odometry variants (issue 16, parts 1 and 2)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from data_tools import open_dataset
+from data_tools.sim.dataset import write_sequence
+from data_tools.sim.simulator import SimConfig, Simulator
+from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
+from prc_slam import labels as L
+from prc_slam.config import Config, PRCConfig
+from prc_slam.odometry import classaware
+from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry, GroupVoxelMap, icp
+from prc_slam.odometry.compare import run_compare
+from prc_slam.odometry.guard import DivergenceMonitor, FrameHealth, GuardConfig, OdometryFailure, check_pose
+from prc_slam.odometry.kiss import KissOdometry, OdometryConfig
+from prc_slam.report import write_compare_outputs
+
+
+def _translation(x: float, yaw_deg: float = 0.0) -> np.ndarray:
+    T = np.eye(4)
+    a = np.radians(yaw_deg)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    T[0, 3] = x
+    return T
+
+
+def test_check_pose_bounds():
+    g = GuardConfig(max_speed=10.0, max_angular_rate=1.0)
+    check_pose(_translation(0.9, 5.0), np.eye(4), 0.1, g, "x")  # 9 m/s, 0.87 rad/s
+    with pytest.raises(OdometryFailure, match=r"pose jump of 1.10 m in 0.100 s"):
+        check_pose(_translation(1.1), np.eye(4), 0.1, g, "x")
+    with pytest.raises(OdometryFailure, match=r"pose jump of 6.0 deg"):
+        check_pose(_translation(0.0, 6.0), np.eye(4), 0.1, g, "x")
+    check_pose(_translation(4.0), np.eye(4), 0.5, g, "x")  # 2 Hz keyframes: 8 m/s
+    bad = np.eye(4)
+    bad[0, 0] = np.nan
+    with pytest.raises(OdometryFailure, match="non-finite"):
+        check_pose(bad, np.eye(4), 0.1, g, "x")
+    with pytest.raises(OdometryFailure, match="not rigid"):
+        check_pose(np.diag([2.0, 1, 1, 1]), np.eye(4), 0.1, g, "x")
+
+
+def test_divergence_monitor_flags_jumps_against_the_running_level():
+    mon = DivergenceMonitor(GuardConfig(divergence_factor=3.0, window=10, warm_up=3))
+    flags = []
+    for res, thr, inl in [(0.1, 0.5, 900), (0.12, 0.5, 950), (0.1, 0.6, 900), (0.11, 0.5, 920), (0.5, 0.5, 900)]:
+        flags.append(mon.update(FrameHealth(1000, inl, res, thr)).suspicious)
+    assert flags == [False, False, False, False, True]  # 0.5 > 3 x median(0.1, 0.12, 0.1, 0.11)
+    h = mon.update(FrameHealth(1000, 200, 0.1, 0.5))  # inlier fraction 0.2 < 0.9 / 3
+    assert h.suspicious and "inlier fraction" in h.why
+    h = mon.update(FrameHealth(1000, 900, 0.1, 2.0))
+    assert h.suspicious and "threshold" in h.why and "residual" not in h.why
+
+
+def _room(rng, n=4000):
+    g = rng.uniform([-20, -20, -1.7], [20, 20, -1.7], (n, 3))
+    w1 = np.column_stack([rng.uniform(-20, 20, n), np.full(n, 15.0), rng.uniform(-1.7, 4, n)])
+    w2 = np.column_stack([np.full(n, -12.0), rng.uniform(-20, 20, n), rng.uniform(-1.7, 4, n)])
+    return np.concatenate([g, w1, w2]) + rng.normal(0, 0.01, (3 * n, 3))
+
+
+def test_kiss_registration_returning_nan_fails_cleanly_and_never_reaches_kiss():
+    pts = _room(np.random.default_rng(0))
+    odo = KissOdometry(OdometryConfig(deskew=False))
+    odo.register(pts)
+    odo.register(pts)
+    before = [p.copy() for p in odo.poses]
+    real = odo.kiss.registration.align_points_to_map
+    odo.kiss.registration.align_points_to_map = lambda **kw: np.full((4, 4), np.nan)
+    with pytest.raises(OdometryFailure, match="non-finite pose"):
+        odo.register(pts)
+    assert len(odo.poses) == 2 and all(np.array_equal(a, b) for a, b in zip(odo.poses, before, strict=True))
+    assert np.isfinite(odo.kiss.last_pose).all() and np.isfinite(odo.kiss.last_delta).all()  # state untouched
+    odo.kiss.registration.align_points_to_map = real
+    noisy = pts.copy()
+    noisy[::50] = np.nan  # non-finite input points are left out, counted, and never given to KISS-ICP
+    odo.register(noisy)
+    assert odo.health[-1].dropped_nonfinite == len(pts[::50]) and np.isfinite(odo.poses[-1]).all()
+
+
+@pytest.mark.parametrize(
+    "case",
+    ["too_few", "collinear", "coplanar", "one_group", "zero_weight"],
+)
+def test_class_aware_icp_degenerate_correspondences_give_no_nan(case):
+    rng = np.random.default_rng(3)
+    if case == "too_few":
+        map_pts = rng.uniform(-5, 5, (5, 3))
+    elif case == "collinear":
+        map_pts = np.column_stack([np.linspace(-10, 10, 400), np.zeros(400), np.zeros(400)])
+    else:  # a plane (the single-group cases use it too)
+        map_pts = np.column_stack([rng.uniform(-10, 10, 800), rng.uniform(-10, 10, 800), np.zeros(800)])
+    groups = np.full(len(map_pts), GROUP_NAMES.index("ground"))
+    gmap = GroupVoxelMap(1.0, 100.0, 20)
+    gmap.update(map_pts, groups, np.eye(4))
+    src = map_pts + np.array([0.1, 0.05, 0.02])
+    weights = np.ones(len(GROUP_NAMES))
+    if case == "zero_weight":
+        weights[:] = 0.0
+    T, _, _, _ = icp(src, groups, weights, *gmap.index(), 1.0, np.eye(4), 3.0, 1.0, 50, 1e-4)
+    assert np.isfinite(T).all()
+    assert np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
+    if case == "coplanar":  # the constrained direction (the plane's normal) is still recovered
+        assert abs(T[2, 3] + 0.02) < 0.01
+
+
+def test_class_aware_odometry_on_a_single_line_does_not_return_nan():
+    line = np.column_stack([np.linspace(0, 30, 3000), np.zeros(3000), np.zeros(3000)])
+    odo = ClassAwareOdometry(OdometryConfig(deskew=False))
+    for _ in range(3):
+        pose = odo.register(line, None, np.full(len(line), L.BUILDING, np.uint8))
+        assert np.isfinite(pose).all()
+
+
+@pytest.fixture(scope="module")
+def short_drive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sim") / "urban"
+    write_sequence(Simulator(SimConfig(frames=12, seed=11)), root)
+    return open_dataset(root)
+
+
+def test_injected_failure_stops_one_variant_and_leaves_the_others_identical(short_drive, monkeypatch, tmp_path):
+    # one thread where TBB lets us (KISS-ICP's parallel reductions sum in varying order)
+    cfg = Config(prc=PRCConfig.preset("multibeam"), odometry=OdometryConfig(max_num_threads=1))
+    scans = [short_drive[i] for i in range(len(short_drive))]
+    clean = run_compare(iter(scans), cfg, ["raw", "prc"])
+    real_icp = classaware.icp
+    calls = {"n": 0}
+
+    def nan_after_four(*args):
+        calls["n"] += 1
+        T, counts, partner, it = real_icp(*args)
+        return (np.full((4, 4), np.nan) if calls["n"] >= 5 else T), counts, partner, it
+
+    monkeypatch.setattr(classaware, "warm_up", lambda: None)  # count the run's ICP calls only
+    monkeypatch.setattr(classaware, "icp", nan_after_four)
+    res = run_compare(iter(scans), cfg, ["raw", "prc+classaware", "prc"])
+    failed = res.runs["prc+classaware"].failed
+    assert failed is not None and failed["frame"] == 5 and "non-finite pose" in failed["reason"]
+    assert res.runs["prc+classaware"].frames == 5
+    for name in ("raw", "prc"):
+        assert res.runs[name].failed is None
+        # identical up to the summation order of KISS-ICP's TBB reduction (bitwise when it runs alone)
+        np.testing.assert_allclose(res.runs[name].poses, clean.runs[name].poses, rtol=0, atol=1e-9)
+    m = res.metrics()
+    json.dumps(m, allow_nan=False)  # strict JSON
+    ca = m["variants"]["prc+classaware"]
+    assert ca["failed"] and ca["failed_at_frame"] == 5 and ca["frames"] == 5 and ca["ate_rmse_m"] is not None
+    assert m["variants"]["raw"]["frames"] == 12 and not m["variants"]["raw"]["failed"]
+    assert len(m["variants"]["raw"]["per_frame"]["inliers"]) == 12
+    out = tmp_path / "cmp"
+    write_compare_outputs(res, cfg, out, "fault", write_kitti_poses, write_tum_poses)
+    report = (out / "report.md").read_text()
+    assert "**FAILED at frame 5**" in report and "prc+classaware (failed)" in report
+    assert len(np.loadtxt(out / "prc+classaware_poses_kitti.txt")) == 5
+    assert len(np.loadtxt(out / "raw_poses_tum.txt")) == 12
+    assert (out / "trajectories.png").is_file() and json.loads((out / "metrics.json").read_text())
+
+
+def test_exception_inside_a_variant_is_recorded_not_raised(short_drive, monkeypatch):
+    scans = [short_drive[i] for i in range(4)]
+
+    def boom(self, *a, **k):
+        raise RuntimeError("solver exploded")
+
+    monkeypatch.setattr(ClassAwareOdometry, "register", boom)
+    res = run_compare(iter(scans), Config(prc=PRCConfig.preset("multibeam")), ["raw", "prc+classaware"])
+    assert res.runs["prc+classaware"].failed == {"frame": 0, "reason": "RuntimeError: solver exploded"}
+    assert res.runs["raw"].frames == 4
+    m = res.metrics()["variants"]["prc+classaware"]
+    assert m["frames"] == 0 and m["ms_per_frame"] is None and "ate_rmse_m" not in m
+
+
+def test_health_is_recorded_per_frame(short_drive):
+    res = run_compare(iter([short_drive[i] for i in range(6)]), Config(prc=PRCConfig.preset("multibeam")), ["raw"])
+    health = res.runs["raw"].odometry.health
+    assert len(health) == 6 and health[0].source_points == 0  # no map on the first frame
+    for h in health[1:]:
+        assert 0.5 < h.inlier_fraction <= 1.0 and 0 < h.mean_residual_m < h.threshold_m * 3
