@@ -64,7 +64,9 @@ class PoseFormat(str, Enum):
 @handles_errors
 def compare(
     input: Path = typer.Argument(..., help="any supported input (KITTI, simulated, Ouster, bag, MCAP, PCD folder)"),
-    variants: str = typer.Option("raw,prc", help="comma-separated variants: raw, prc, prc+classaware"),
+    variants: str = typer.Option(
+        "raw,prc", help="comma-separated variants: raw, prc, prc+classaware; peers: sor, ror, patchwork"
+    ),
     mode: Mode = typer.Option(Mode.urban, help="PRC classes: urban, or forest (trunks for class-aware matching)"),
     deskew: bool = typer.Option(True, "--deskew/--no-deskew", help="KISS-ICP's constant-velocity deskewing"),
     online: bool = typer.Option(False, "--online", help="also run the online car/curb detectors and log them"),
