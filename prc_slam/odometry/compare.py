@@ -313,7 +313,12 @@ def run_compare(
                 t0 = time.perf_counter()
                 extra = {}
                 if res is not None and res.source is not None:
-                    extra["source"] = res.source[keep]  # PRC chooses what is registered
+                    source = res.source
+                    if name == "prc+classaware":
+                        # the class-aware odometry matches ground to ground only: it registers all
+                        # of the kept ground (forest walk, 300 frames; README)
+                        source = source | (keep & (codes == L.GROUND))
+                    extra["source"] = source[keep]  # PRC chooses what is registered
                 pose = run.odometry.register(
                     pts[keep], None if t is None else t[keep], None if codes is None else codes[keep], frame_time,
                     **extra,
