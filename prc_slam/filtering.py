@@ -27,8 +27,10 @@ class FilterConfig(BaseModel):
     deskewing, times and ATE relative to all points; README): noise dropped; for the map, ground
     on a 3 m horizontal grid, vegetation on 1 m and everything else on 0.5 m cubes; KISS-ICP
     registers ground on a 10 m grid, buildings on 4 m and vegetation on 3 m cubes and all the rest
-    (time x0.49, ATE x1.98). Steps: ground 1 m -> 3 m x1.01 -> x0.80 time, ATE x1.40 -> x1.50;
-    0.5 m cubes x0.66, x1.57; the registered subset x0.49, x1.98.
+    (time x0.49-0.57 depending on the machine's load, ATE x1.98-2.26). Steps, one busy-machine
+    run: ground 1 m -> 3 m x1.01 -> x0.80 time, ATE x1.40 -> x1.50; 0.5 m cubes x0.66, x1.57;
+    the registered subset x0.49, x1.98. The time criterion of issue 16 (x0.5) is met only under
+    load and the ATE criterion (x1.05) is not: see the issue's report.
     ``FilterConfig(cell=1.0, sample={}, sample_other=0, source_cell={})`` is the earlier policy
     (noise dropped, ground on 1 m, all else kept)."""
 
