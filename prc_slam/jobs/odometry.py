@@ -59,12 +59,9 @@ def run_odometry(
     **open_options: Any,
 ) -> tuple[OdometryRun, dict[int, np.ndarray]]:
     """Run the odometry variants (and the online detectors with ``online``) over ``input``."""
+    from prc_slam.odometry.compare import OdometryVariants
     from prc_slam.scoring import OnlineScorer, PRCScorer
 
-    try:
-        from prc_slam.odometry.compare import OdometryVariants
-    except ImportError:  # the odometry stage is being reworked: its whole-run loop until then
-        return _legacy(input, config, variants, fmt, max_frames, viewer, reporter, open_options)
     variants = list(variants)
     stage = OdometryVariants(config, variants)
     dataset, n = open_input(input, fmt, max_frames, **open_options)
@@ -118,27 +115,6 @@ def run_odometry(
     if written is not None:
         run.written.append(written)
     return run, ({} if keeper is None else keeper.labels)
-
-
-def _legacy(input, config, variants, fmt, max_frames, viewer, reporter, open_options):
-    from prc_slam.odometry.compare import run_compare
-
-    dataset, n = open_input(input, fmt, max_frames, **open_options)
-    viewer = viewer or Viewer()
-    task = None if reporter is None else reporter.task("odometry " + " | ".join(variants), n)
-
-    def on_frame(record) -> None:
-        if task is not None:
-            task.advance()
-        if viewer.sink is not None:
-            viewer.sink.log_record(record, gt_pose=record.frame.scan.gt_pose)
-
-    result = run_compare(frames_of(dataset, n), config, list(variants), on_frame=on_frame)
-    run = OdometryRun(result, PipelineResult(frames=len(result.times)), result.metrics())
-    written = viewer.close()
-    if written is not None:
-        run.written.append(written)
-    return run, {}
 
 
 def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> list[Path]:

@@ -75,7 +75,7 @@ class ViewerSink:
     def frame(self, step: PipelineFrame) -> None:
         scan = step.scan
         pose = scan.gt_pose
-        if step.odometry is not None:
+        if step.odometry is not None and step.odometry.poses:
             self.viz.log_record(step.odometry, gt_pose=scan.gt_pose)
             if pose is None:
                 pose = self.viz.current_pose()

@@ -253,54 +253,69 @@ def _frame_time(scan: Scan) -> float | None:
     return None if t is None else float(t)
 
 
-def run_compare(
-    scans: Iterable[Scan],
-    config: Config,
-    variants: Iterable[str] = DEFAULT_VARIANTS,
-    on_frame: Callable[[FrameRecord], None] | None = None,
-) -> CompareResult:
-    """Run every variant over ``scans`` in one pass.
+class OdometryVariants:
+    """The odometry variants as one pipeline stage (:class:`prc_slam.pipeline.Pipeline`): every
+    frame is filtered and registered by each variant in turn, so machine noise hits all alike.
 
     A variant whose odometry fails (non-finite pose, pose jump beyond the guard's bounds, ICP not
     converged, or any error inside it) stops at that frame with the reason in ``failed``; the
     other variants go on, unaffected. A peer variant whose package is missing is left out with a
-    warning (``CompareResult.skipped``)."""
-    variants = list(variants)
-    unknown = [v for v in variants if v not in VARIANTS]
-    if unknown:
-        raise ValueError(f"unknown variants {unknown}; choose from {list(VARIANTS)}")
-    skipped = _check_peers([v for v in variants if v in PEER_VARIANTS])
-    if skipped:
-        warnings.warn("; ".join(f"skipping {v}: {why}" for v, why in skipped.items()), stacklevel=2)
-    variants = [v for v in variants if v not in skipped]
-    runs = {
-        v: VariantRun(
-            v,
-            ClassAwareOdometry(config.odometry, config.classaware)
-            if v == "prc+classaware"
-            else KissOdometry(config.odometry),
-        )
-        for v in variants
-    }
-    warm_up()
-    _warm_up_kernels(config)
-    if "prc+classaware" in variants:
-        try:
-            classaware.warm_up()
-        except Exception:  # compilation only; a broken odometry fails its variant on the first frame
-            pass
-    gt, times, names = [], [], []
-    needs_prc = any(v in ("prc", "prc+classaware") for v in variants)
-    frames = classify_frames(scans, config.prc) if needs_prc else (ClassifiedFrame(s, None, 0.0) for s in scans)
-    for i, frame in enumerate(frames):
+    warning (``CompareResult.skipped``).
+    """
+
+    def __init__(self, config: Config, variants: Iterable[str] = DEFAULT_VARIANTS) -> None:
+        variants = list(variants)
+        if not variants:
+            raise ValueError("--variants: give at least one variant (e.g. raw,prc)")
+        unknown = [v for v in variants if v not in VARIANTS]
+        if unknown:
+            raise ValueError(f"--variants: unknown variants {unknown}; choose from {list(VARIANTS)}")
+        self.skipped = _check_peers([v for v in variants if v in PEER_VARIANTS])
+        if self.skipped:
+            warnings.warn("; ".join(f"skipping {v}: {why}" for v, why in self.skipped.items()), stacklevel=2)
+        variants = [v for v in variants if v not in self.skipped]
+        if not variants:
+            raise ValueError("--variants: none of the variants can run here: " + "; ".join(self.skipped.values()))
+        self.config = config
+        self.runs = {
+            v: VariantRun(
+                v,
+                ClassAwareOdometry(config.odometry, config.classaware)
+                if v == "prc+classaware"
+                else KissOdometry(config.odometry),
+            )
+            for v in variants
+        }
+        warm_up()
+        _warm_up_kernels(config)
+        if "prc+classaware" in variants:
+            try:
+                classaware.warm_up()
+            except Exception:  # compilation only; a broken odometry fails its variant on the first frame
+                pass
+        self.needs_prc = any(v in ("prc", "prc+classaware") for v in variants)
+        self.gt: list[np.ndarray | None] = []
+        self.times: list[float] = []
+        self.names: list[str] = []
+
+    @property
+    def all_failed(self) -> bool:
+        return all(r.failed is not None for r in self.runs.values())
+
+    def step(self, index: int, frame: ClassifiedFrame) -> FrameRecord:
+        """Filter and register one frame with every variant still running (once every variant
+        has failed, frames are no longer recorded)."""
+        config = self.config
         scan = frame.scan
+        if self.all_failed:
+            return FrameRecord(frame, index, {}, {}, self.runs)
         pts = scan.points()
         t = scan.point_times()
         frame_time = _frame_time(scan)
         kept: dict[str, np.ndarray] = {}
         poses: dict[str, np.ndarray] = {}
-        labels = frame.point_labels() if needs_prc else None
-        for name, run in runs.items():
+        labels = frame.point_labels() if self.needs_prc else None
+        for name, run in self.runs.items():
             if run.failed is not None:
                 continue
             try:
@@ -326,7 +341,7 @@ def run_compare(
                 run.ms["icp"].append((time.perf_counter() - t0) * 1e3)
             except Exception as exc:  # one variant's failure must not end the others
                 reason = getattr(exc, "reason", None) or f"{type(exc).__name__}: {exc}"
-                run.failed = {"frame": i, "reason": reason}
+                run.failed = {"frame": index, "reason": reason}
                 for k in run.ms:  # stage times of the frames with a pose only
                     del run.ms[k][run.frames :]
                 continue
@@ -339,12 +354,31 @@ def run_compare(
             run.points_in.append(len(pts))
             run.points_to_icp.append(int(keep.sum()))
             kept[name] = keep
-        gt.append(scan.gt_pose)
-        times.append(frame_time if frame_time is not None else float(i))
-        names.append(scan.name)
-        if on_frame is not None and poses:
-            on_frame(FrameRecord(frame, i, kept, poses, runs))
-        if all(r.failed is not None for r in runs.values()):
+        self.gt.append(scan.gt_pose)
+        self.times.append(frame_time if frame_time is not None else float(index))
+        self.names.append(scan.name)
+        return FrameRecord(frame, index, kept, poses, self.runs)
+
+    def result(self) -> CompareResult:
+        gt = self.gt
+        gt_poses = np.array(gt) if gt and all(g is not None for g in gt) else None
+        return CompareResult(self.runs, gt_poses, np.asarray(self.times, dtype=float), self.names, self.skipped)
+
+
+def run_compare(
+    scans: Iterable[Scan],
+    config: Config,
+    variants: Iterable[str] = DEFAULT_VARIANTS,
+    on_frame: Callable[[FrameRecord], None] | None = None,
+) -> CompareResult:
+    """Run every variant over ``scans`` in one pass (see :class:`OdometryVariants`); stops when
+    every variant has failed."""
+    stage = OdometryVariants(config, variants)
+    frames = classify_frames(scans, config.prc) if stage.needs_prc else (ClassifiedFrame(s, None, 0.0) for s in scans)
+    for i, frame in enumerate(frames):
+        record = stage.step(i, frame)
+        if on_frame is not None and record.poses:
+            on_frame(record)
+        if stage.all_failed:
             break
-    gt_poses = np.array(gt) if gt and all(g is not None for g in gt) else None
-    return CompareResult(runs, gt_poses, np.asarray(times, dtype=float), names, skipped)
+    return stage.result()
