@@ -131,3 +131,33 @@ def test_an_interrupt_closes_the_sinks_as_partial(hdl64):
     with pytest.raises(KeyboardInterrupt):
         Pipeline(prc=PRCConfig.preset("multibeam"), sinks=[rec]).run(iter(scans))
     assert rec.closed is not None and rec.closed.interrupted and rec.closed.frames == 2
+
+
+def test_compare_online_records_every_stage_of_every_logged_frame(tmp_path, hdl64):
+    import rerun.chunk as rc
+
+    rrd = tmp_path / "run.rrd"
+    res = runner.invoke(
+        app, ["compare", str(hdl64), "--online", "--rrd", str(rrd), "--log-every", "1", "--out", str(tmp_path / "c")]
+    )
+    assert res.exit_code == 0, res.output
+    wanted = {
+        "/world/sensor/raw": "Points3D",
+        "/world/sensor/filtered": "Points3D",
+        "/world/map": "Points3D",
+        "/world/trajectory/estimate": "LineStrips3D",
+        "/world/detections/cars": "Boxes3D",
+        "/world/detections/curbs": "LineStrips3D",
+    }
+    frames: dict[str, set[int]] = {path: set() for path in wanted}
+    for chunk in rc.RrdReader(str(rrd)).store().stream():
+        path = chunk.entity_path
+        if path not in wanted:
+            continue
+        rb = chunk.to_record_batch()
+        if "frame" in rb.schema.names:
+            frames[path].update(rb.column("frame").to_pylist())
+    for path, seen in frames.items():
+        assert seen == {0, 1, 2, 3}, f"{path}: logged on frames {sorted(seen)}"
+    m = json.loads((tmp_path / "c" / "metrics.json").read_text())
+    assert m["online"]["frames"] == 4 and "per_class" in m["online"]

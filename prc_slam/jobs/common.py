@@ -117,7 +117,7 @@ class Viewer:
             web_port=web_port,
             grpc_port=grpc_port,
         )
-        self.sink = RerunSink(rec, VizConfig(every=every, map_voxel=map_voxel))
+        self.sink = RerunSink(rec, VizConfig(every=every, map_every=every, map_voxel=map_voxel))
         if self.address:
             log.info(f"web viewer: {self.address}")
 

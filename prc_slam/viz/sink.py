@@ -14,10 +14,16 @@ Entity paths::
     range_image/range             DepthImage (metres)
     range_image/prc               SegmentationImage of PRC labels
     range_image/online            SegmentationImage of the online detectors' labels
+    range_image/car_instances     SegmentationImage of the car instance ids
     world/sensor/online           Points3D, every point, class ids = online detector labels
     world/detections/curbs        LineStrips3D, one polyline per detected curb
     world/detections/cars         Boxes3D, one oriented box per car instance, labelled
-    metrics/...                   Scalars: points in / kept per class, ms per stage, ICP threshold, error
+    metrics/ms/V/stage            Scalars: ms per stage and variant
+    metrics/points/..., metrics/points_to_icp/V, metrics/inliers/V   Scalars: points in / kept per
+                                  class, points registered, ICP inliers
+    metrics/icp_threshold/V, metrics/icp/V/...    Scalars: adaptive threshold, inlier fraction, residual,
+                                  divergence flag
+    metrics/error/position_m      Scalars: position error against the ground truth
     logs                          TextLog: warnings and skips
 
 One AnnotationContext (the label codes, names and colours of ``prc_slam.labels``) at the root
@@ -74,7 +80,9 @@ def default_blueprint() -> rrb.Blueprint:
                 rrb.Vertical(
                     rrb.TimeSeriesView(name="stage times (ms)", origin="metrics/ms"),
                     rrb.TimeSeriesView(
-                        name="points", origin="metrics", contents=["metrics/points/**", "metrics/points_to_icp/**"]
+                        name="points",
+                        origin="metrics",
+                        contents=["metrics/points/**", "metrics/points_to_icp/**", "metrics/inliers/**"],
                     ),
                     rrb.TimeSeriesView(
                         name="ICP threshold, error (m)",
@@ -240,7 +248,9 @@ class RerunSink:
                 h = record.health(name)
                 for key in ("inliers", "inlier_fraction", "mean_residual_m", "suspicious"):
                     if h[key] is not None and np.isfinite(float(h[key])):
-                        self.rec.log(f"metrics/icp/{name}/{key}", rr.Scalars(float(h[key])))
+                        # counts beside the point counts; fractions, metres and the flag on the ICP axis
+                        path = f"metrics/inliers/{name}" if key == "inliers" else f"metrics/icp/{name}/{key}"
+                        self.rec.log(path, rr.Scalars(float(h[key])))
         if full:
             self._log_trajectories(main)
             self._log_clouds(record, main, world_from_first)
