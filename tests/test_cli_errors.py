@@ -161,7 +161,7 @@ def _cli() -> str:
 
 
 def test_ctrl_c_at_any_moment_is_one_line_and_130(tmp_path, sim):
-    for delay in (0.3, 4.0):  # during start-up (imports), then mid-run
+    for delay in (0.3, 1.0, 2.5, 4.0):  # during start-up (imports), set-up, then mid-run
         proc = subprocess.Popen(
             [_cli(), "compare", str(sim), "--out", str(tmp_path / f"c{delay}")],
             stdout=subprocess.PIPE,

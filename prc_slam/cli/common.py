@@ -61,8 +61,12 @@ def one_line(exc: BaseException) -> str:
     return " ".join(text.split("\n")[0].split())
 
 
+_reported: list[str] = []  # the error lines printed in this process
+
+
 def fail(message: str, code: int = 2) -> typer.Exit:
     console.print(f"[red]error:[/red] {message}", markup=True, highlight=False)
+    _reported.append(message)
     return typer.Exit(code=code)
 
 
@@ -112,6 +116,7 @@ class OneLineGroup(typer.core.TyperGroup):
     """Usage errors (unknown option, value out of range) as one line, exit 2; Ctrl-C exit 130."""
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):  # type: ignore[override]
+        _reported.clear()
         try:
             rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var, standalone_mode=False, **extra)
         except _click.NoArgsIsHelpError:  # the help is already printed
@@ -127,8 +132,9 @@ class OneLineGroup(typer.core.TyperGroup):
             console.print(f"[red]error:[/red] {exc.format_message()}", highlight=False)
             rv = exc.exit_code
         except (typer.Abort, KeyboardInterrupt):
-            console.print("[red]error:[/red] interrupted", highlight=False)
             rv = 130
+        if rv == 130 and not _reported:  # Ctrl-C outside a command (typer turns it into exit 130)
+            fail("interrupted", 130)
         if standalone_mode:
             sys.exit(rv or 0)
         return rv
