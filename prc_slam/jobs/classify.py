@@ -34,6 +34,14 @@ def _file_sinks(outputs: Outputs, source: str) -> tuple[list, LasFile | None]:
     return sinks, las
 
 
+def _written(viewer: Viewer, las: LasFile | None, outputs: Outputs) -> list[Path]:
+    """Close the recording; the files and folders the run wrote."""
+    written = [p for p in (viewer.close(), None if las is None else las.written) if p is not None]
+    if outputs.labels_out is not None:
+        written.append(outputs.labels_out)
+    return written
+
+
 def _run(pipe: Pipeline, dataset, n: int, viewer: Viewer, reporter: Reporter | None, title: str):
     task = None if reporter is None else reporter.task(title, n)
     if task is not None:
@@ -81,10 +89,7 @@ def classify_job(
     metrics = scorer.metrics(result)
     metrics["input"] = str(input)
     metrics["config"] = config.model_dump(mode="json")
-    written = [p for p in (viewer.close(), None if las is None else las.written) if p is not None]
-    if outputs.labels_out is not None:
-        written.append(outputs.labels_out)
-    return metrics, written
+    return metrics, _written(viewer, las, outputs)
 
 
 def detect_job(
@@ -111,7 +116,4 @@ def detect_job(
     result = _run(pipe, dataset, n, viewer, reporter, "online detectors")
     metrics = scorer.metrics(result)
     metrics["input"] = str(input)
-    written = [p for p in (viewer.close(), None if las is None else las.written) if p is not None]
-    if outputs.labels_out is not None:
-        written.append(outputs.labels_out)
-    return metrics, written
+    return metrics, _written(viewer, las, outputs)
