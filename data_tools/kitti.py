@@ -88,10 +88,13 @@ class KittiSequence(SequenceBase):
     The bins may come from any spinning sensor: the organiser detects the point order
     (ring-major as the HDL-64E's KITTI bins, column-major, either azimuth direction, or none)
     and estimates beams and columns on the first frame unless ``rows``/``cols``/``altitude``
-    are given. Times follow the KITTI convention: the sweep starts and ends at azimuth 0 and
-    the sensor turns clockwise (against increasing azimuth), ``SWEEP_PERIOD`` long; columns
-    run clockwise from azimuth 0 and carry their time (``clockwise=False`` for sensors that
-    turn the other way).
+    are given.
+
+    The KITTI odometry bins are motion-compensated already, so by default the scans carry no
+    per-point times (as KISS-ICP's KITTI loader: no deskewing; with made-up column times KISS-ICP's
+    frame-to-frame error on KITTI 00 grew from 0.086 to 0.358 m). For uncompensated sweeps in this
+    layout give ``clockwise``: times then follow the KITTI convention (the sweep starts and ends at
+    azimuth 0, ``SWEEP_PERIOD`` long, turning clockwise, or counter-clockwise with ``False``).
     """
 
     format = "kitti"
@@ -104,7 +107,7 @@ class KittiSequence(SequenceBase):
         *,
         altitude: np.ndarray | None = None,
         method: str = "auto",
-        clockwise: bool = True,
+        clockwise: bool | None = None,
         sweep_period: float = SWEEP_PERIOD,
     ) -> None:
         self.root = Path(root)
@@ -119,7 +122,8 @@ class KittiSequence(SequenceBase):
         self.sweep_period = float(sweep_period)
         self.organizer = Organizer(
             rows=rows, cols=cols, altitude=altitude, method=method, source_name=str(self.root),
-            sweep_period=self.sweep_period, spin="cw" if clockwise else "ccw", start_azimuth=0.0,
+            sweep_period=self.sweep_period, spin=None if clockwise is None else ("cw" if clockwise else "ccw"),
+            start_azimuth=None if clockwise is None else 0.0,
         )  # fmt: skip
         self.times = read_times(self.root / "times.txt") if (self.root / "times.txt").is_file() else None
         if self.times is not None and len(self.times) < len(self.files):
@@ -138,7 +142,7 @@ class KittiSequence(SequenceBase):
         The Scan carries the same times per column."""
         az = np.nan_to_num(np.arctan2(pts[:, 1], pts[:, 0]).astype(np.float64))
         frac = (az / (2.0 * np.pi)) % 1.0
-        if self.clockwise:
+        if self.clockwise is not False:
             frac = (1.0 - frac) % 1.0
         return t0 + frac * self.sweep_period
 

@@ -717,7 +717,8 @@ class Organizer:
 
     Columns run in firing order from the sweep's start: column ``c`` holds the azimuths
     ``start + direction * (c + phase_r +- 0.5) * 2 pi / cols``; without per-point times, column
-    ``c`` is stamped ``frame_time + (c + 0.5) / cols * sweep_period``.
+    ``c`` is stamped ``frame_time + (c + 0.5) / cols * sweep_period`` only when ``spin`` is given
+    (the source fixes its time convention); otherwise the Scan carries no times.
     """
 
     def __init__(
@@ -1221,8 +1222,9 @@ class Organizer:
                 point_slot[lost] = empty[0]
         if frame_time is None:
             frame_time = float(np.min(t)) if t is not None else self.frames * self.sweep_period
-        if t is None and not slot_times_given:
-            # column c fired at (c + 0.5) / cols of the sweep (columns follow time)
+        if t is None and not slot_times_given and self.spin is not None:
+            # the source fixes its time convention: column c fired at (c + 0.5) / cols of the
+            # sweep (columns follow time). Without it no times are made up (no deskewing).
             t = frame_time + (np.arange(cols) + 0.5) / cols * self.sweep_period
         gt_slot = gt_inst = None
         if gt_point_labels is not None:
