@@ -186,22 +186,14 @@ def bench_mapclass(frames: int = 50, repeat: int = 2) -> dict[str, Any]:
     """Map classification (paper 004) end to end on the accumulated map of a simulated hdl64
     urban drive (``frames`` consecutive sweeps at ground-truth poses, > 5 M points)."""
     from data_tools.sim.simulator import SimConfig, Simulator
-    from prc_slam.mapclass import accumulate, classify_map
+    from prc_slam.mapclass import accumulate
     from prc_slam.scan import Scan
 
     sim = Simulator(SimConfig(scene="urban", sensor="hdl64", frames=frames))
     sims = [sim.frame(i) for i in range(frames)]
     scans = ((i, Scan(f.ranges, sim.sensor.model, timestamps=f.slot_times), {}) for i, f in enumerate(sims))
     points = accumulate(scans, np.array([f.pose for f in sims]), np.array([f.time for f in sims])).points
-    classify_map(points[:20_000])  # compile
-    best = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        result = classify_map(points)
-        wall = time.perf_counter() - t0
-        if best is None or wall < best[0]:
-            best = (wall, result.seconds)
-    wall, stages = best
+    wall, stages = _best_classify_map(points, repeat)
     return {
         "points_per_s": len(points) / wall,
         "points": len(points),
@@ -211,6 +203,22 @@ def bench_mapclass(frames: int = 50, repeat: int = 2) -> dict[str, Any]:
         **{f"seconds_{k}": v for k, v in stages.items()},
         "paper_seconds_per_million": PAPER_MAPCLASS_S_PER_MILLION,
     }
+
+
+def _best_classify_map(points: np.ndarray, repeat: int) -> tuple[float, dict[str, float]]:
+    """Best wall time of ``repeat`` map classifications of ``points`` (after compiling on a
+    small piece) and that run's seconds per stage."""
+    from prc_slam.mapclass import classify_map
+
+    classify_map(points[:20_000])  # compile
+    best = None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        result = classify_map(points)
+        wall = time.perf_counter() - t0
+        if best is None or wall < best[0]:
+            best = (wall, result.seconds)
+    return best
 
 
 def als_tile(min_points: int = 5_000_000, density: float = 20.0, seed: int = 0) -> np.ndarray:
@@ -229,18 +237,9 @@ def bench_mapclass_als(min_points: int = 5_000_000, repeat: int = 1) -> dict[str
     """Map classification on a >= 5 M-point simulated ALS tile (20 points/m^2), in one piece:
     ``als_points_per_s`` (issue 20: >= 2 M points/s); compare with ``points_per_s`` of the
     mobile-mapping map measured in the same run."""
-    from prc_slam.mapclass import classify_map
 
     points = als_tile(min_points)
-    classify_map(points[:20_000])  # compile
-    best = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        result = classify_map(points)
-        wall = time.perf_counter() - t0
-        if best is None or wall < best[0]:
-            best = (wall, result.seconds)
-    wall, stages = best
+    wall, stages = _best_classify_map(points, repeat)
     return {
         "als_points_per_s": len(points) / wall,
         "als_points": len(points),

@@ -279,6 +279,26 @@ class CarResult:
     boxes: list[dict] = field(default_factory=list)
 
 
+def oriented_box(pts: np.ndarray) -> dict:
+    """The upright box of one car's points: yaw along the main horizontal axis of their spread,
+    extent and centre in that frame, height from the lowest to the highest point."""
+    c = pts[:, :2].mean(axis=0)
+    cov = np.cov((pts[:, :2] - c).T) if len(pts) > 2 else np.eye(2)
+    w, v = np.linalg.eigh(cov)
+    axis = v[:, np.argmax(w)]
+    yaw = float(np.arctan2(axis[1], axis[0]))
+    rot = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])
+    local = (pts[:, :2] - c) @ rot.T
+    lo, hi = local.min(axis=0), local.max(axis=0)
+    centre_xy = c + ((lo + hi) / 2) @ rot
+    return {
+        "center": [float(centre_xy[0]), float(centre_xy[1]), float((pts[:, 2].min() + pts[:, 2].max()) / 2)],
+        "size": [float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(np.ptp(pts[:, 2]))],
+        "yaw": yaw,
+        "points": len(pts),
+    }
+
+
 def detect_cars(
     scan: Scan,
     coarse: CoarseResult,
@@ -431,22 +451,5 @@ def car_instances(
     order = order[flat[order] > 0]
     cuts = np.flatnonzero(np.diff(flat[order])) + 1
     for idx in np.split(order, cuts) if len(order) else []:  # one box per car (a handful per frame)
-        pts = pts_all[idx]
-        c = pts[:, :2].mean(axis=0)
-        cov = np.cov((pts[:, :2] - c).T) if len(pts) > 2 else np.eye(2)
-        w, v = np.linalg.eigh(cov)
-        axis = v[:, np.argmax(w)]
-        yaw = float(np.arctan2(axis[1], axis[0]))
-        rot = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])
-        local = (pts[:, :2] - c) @ rot.T
-        lo, hi = local.min(axis=0), local.max(axis=0)
-        centre_xy = c + ((lo + hi) / 2) @ rot
-        boxes.append(
-            {
-                "center": [float(centre_xy[0]), float(centre_xy[1]), float((pts[:, 2].min() + pts[:, 2].max()) / 2)],
-                "size": [float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(np.ptp(pts[:, 2]))],
-                "yaw": yaw,
-                "points": len(pts),
-            }
-        )
+        boxes.append(oriented_box(pts_all[idx]))
     return lab, boxes

@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from prc_slam.online.car import oriented_box
 from prc_slam.scan import Scan, SpinningSensor
 
 
@@ -583,24 +584,7 @@ def oriented_boxes(instances: np.ndarray, xyz: np.ndarray) -> list[dict]:
     cuts = np.flatnonzero(np.diff(ids[order])) + 1
     boxes = []
     for idx in np.split(order, cuts):  # one box per car (a handful per sweep)
-        pts = pts_all[idx]
-        c = pts[:, :2].mean(axis=0)
-        cov = np.cov((pts[:, :2] - c).T) if len(pts) > 2 else np.eye(2)
-        w, v = np.linalg.eigh(cov)
-        axis = v[:, np.argmax(w)]
-        yaw = float(np.arctan2(axis[1], axis[0]))
-        rot = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])
-        local = (pts[:, :2] - c) @ rot.T
-        lo, hi = local.min(axis=0), local.max(axis=0)
-        centre = c + ((lo + hi) / 2) @ rot
-        boxes.append(
-            {
-                "center": [float(centre[0]), float(centre[1]), float((pts[:, 2].min() + pts[:, 2].max()) / 2)],
-                "size": [float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(np.ptp(pts[:, 2]))],
-                "yaw": yaw,
-                "points": len(pts),
-            }
-        )
+        boxes.append(oriented_box(pts_all[idx]))
     return boxes
 
 
