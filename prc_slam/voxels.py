@@ -3,11 +3,17 @@
 
 A grid is an open-addressing hash from integer voxel coordinates to a dense voxel index, built
 in one O(N) pass (no sort). Everything is numba; callers get arrays.
+
+On large grids the 3x3x3 neighbourhoods (sums, lists, components) are found by a merge walk over
+the voxels sorted by a linear key (:func:`neighbour_lists`) instead of 27 hash probes per voxel:
+the probes are random accesses into tables of tens of MB (a cache miss each), the walk reads
+sorted arrays in order. Both give the same neighbours in the same order (dx, then dy, then dz
+ascending), so sums are bit-identical.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -142,6 +148,165 @@ def _components(table, coords):
     return comp
 
 
+@njit(cache=True, nogil=True)
+def radix_argsort(keys):
+    """Argsort of non-negative int64 keys (LSD radix sort, 16-bit digits; stable). O(N) per
+    16 bits of the largest key."""
+    n = keys.shape[0]
+    order = np.arange(n)
+    if n < 4096:
+        return np.argsort(keys, kind="mergesort")
+    kmax = keys.max()
+    tmp = np.empty(n, np.int64)
+    cnt = np.empty(65537, np.int64)
+    shift = 0
+    while (kmax >> shift) > 0:
+        cnt[:] = 0
+        for i in range(n):
+            cnt[((keys[order[i]] >> shift) & 0xFFFF) + 1] += 1
+        for d in range(65536):
+            cnt[d + 1] += cnt[d]
+        for i in range(n):
+            o = order[i]
+            d = (keys[o] >> shift) & 0xFFFF
+            tmp[cnt[d]] = o
+            cnt[d] += 1
+        order, tmp = tmp, order
+        shift += 16
+    return order
+
+
+@njit(cache=True, nogil=True)
+def _linear_keys(coords):
+    """Linear key ``((x+1) ny + y+1) nz + z+1`` (offsets from the minimum, one spare layer each
+    side) of every voxel, and ``ny``, ``nz``; ``ny = -1`` when the keys would overflow int64."""
+    nv = coords.shape[0]
+    keys = np.empty(nv, np.int64)
+    if nv == 0:
+        return keys, 1, 1
+    lo0, lo1, lo2 = coords[:, 0].min(), coords[:, 1].min(), coords[:, 2].min()
+    nx = coords[:, 0].max() - lo0 + 3
+    ny = coords[:, 1].max() - lo1 + 3
+    nz = coords[:, 2].max() - lo2 + 3
+    if float(nx) * float(ny) * float(nz) >= 2.0**62:
+        return keys, -1, -1
+    for v in range(nv):
+        keys[v] = ((coords[v, 0] - lo0 + 1) * ny + (coords[v, 1] - lo1 + 1)) * nz + (coords[v, 2] - lo2 + 1)
+    return keys, ny, nz
+
+
+@njit(cache=True, nogil=True)
+def _merge_neighbours(coords):
+    """3x3x3 neighbour lists (CSR, the voxel itself included) in the order of
+    :func:`_neighbours` without the empty slots: a merge walk over the voxels sorted by linear
+    key, one monotone pointer per (dx, dy) column. ``start`` is empty when the keys overflow."""
+    nv = coords.shape[0]
+    keys, ny, nz = _linear_keys(coords)
+    if ny < 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int32)
+    order = radix_argsort(keys)
+    sk = np.empty(nv, np.int64)
+    for i in range(nv):
+        sk[i] = keys[order[i]]
+    offs = np.empty(9, np.int64)
+    k = 0
+    for dx in range(-1, 2):
+        for dy in range(-1, 2):
+            offs[k] = dx * ny * nz + dy * nz
+            k += 1
+    # pass 1: list lengths; pass 2: the lists, each at its voxel's place in input order
+    start = np.zeros(nv + 1, np.int64)
+    ptr = np.zeros(9, np.int64)
+    for i in range(nv):
+        m = 0
+        for o in range(9):
+            t = sk[i] + offs[o]
+            p = ptr[o]
+            while p < nv and sk[p] < t - 1:
+                p += 1
+            ptr[o] = p
+            while p < nv and sk[p] <= t + 1:
+                m += 1
+                p += 1
+        start[order[i] + 1] = m
+    for v in range(nv):
+        start[v + 1] += start[v]
+    nbr = np.empty(start[nv], np.int32)
+    ptr[:] = 0
+    for i in range(nv):
+        a = start[order[i]]
+        for o in range(9):
+            t = sk[i] + offs[o]
+            p = ptr[o]
+            while p < nv and sk[p] < t - 1:
+                p += 1
+            ptr[o] = p
+            while p < nv and sk[p] <= t + 1:
+                nbr[a] = order[p]
+                a += 1
+                p += 1
+    return start, nbr
+
+
+@njit(cache=True, nogil=True)
+def _hash_neighbours(table, coords):
+    """As :func:`_merge_neighbours`, by 27 hash probes per voxel (small grids, huge extents)."""
+    nv = coords.shape[0]
+    start = np.zeros(nv + 1, np.int64)
+    nbr = np.empty(27 * nv, np.int32)
+    m = 0
+    for v in range(nv):
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, coords[v, 2] + dz)
+                    if u >= 0:
+                        nbr[m] = u
+                        m += 1
+        start[v + 1] = m
+    return start, nbr[:m].copy()
+
+
+@njit(cache=True, nogil=True)
+def _lists_sum(start, nbr, values):
+    nv, m = values.shape
+    out = np.zeros((nv, m))
+    for v in range(nv):
+        for j in range(start[v], start[v + 1]):
+            u = nbr[j]
+            for c in range(m):
+                out[v, c] += values[u, c]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _lists_components(start, nbr):
+    """:func:`_components` on neighbour lists (same union order, same ids)."""
+    nv = start.shape[0] - 1
+    parent = np.arange(nv)
+    for v in range(nv):
+        for j in range(start[v], start[v + 1]):
+            u = nbr[j]
+            if u > v:
+                ra, rb = _root(parent, v), _root(parent, u)
+                if ra != rb:
+                    parent[max(ra, rb)] = min(ra, rb)
+    comp = np.empty(nv, np.int64)
+    ids = np.full(nv, -1, np.int64)
+    nc = 0
+    for v in range(nv):
+        r = _root(parent, v)
+        if ids[r] < 0:
+            ids[r] = nc
+            nc += 1
+        comp[v] = ids[r]
+    return comp
+
+
+#: grids with more voxels than this use the merge walk for their 3x3x3 neighbourhoods
+MERGE_MIN_VOXELS = 20_000
+
+
 @dataclass
 class VoxelGrid:
     """Points binned into cubes of side ``size``.
@@ -161,6 +326,7 @@ class VoxelGrid:
     coords: np.ndarray
     table: np.ndarray
     counts: np.ndarray
+    _lists: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def build(cls, points: np.ndarray, size: float) -> VoxelGrid:
@@ -175,12 +341,32 @@ class VoxelGrid:
         """Indices of the ``(2r+1)^3`` voxels around every voxel (itself included), -1 where empty."""
         return _neighbours(self.table, self.coords, radius)
 
+    def neighbour_lists(self) -> tuple[np.ndarray, np.ndarray]:
+        """The occupied voxels of every 3x3x3 neighbourhood (the voxel itself included) as CSR
+        lists: ``nbr[start[v]:start[v + 1]]`` (int32), in the order of :meth:`neighbours` without
+        its -1 entries. Computed once per grid (merge walk on large grids, hash probes on small
+        ones or when the linear keys would overflow)."""
+        if self._lists is None:
+            start = np.zeros(0, np.int64)
+            if self.n_voxels > MERGE_MIN_VOXELS:
+                start, nbr = _merge_neighbours(self.coords)
+            if len(start) == 0:
+                start, nbr = _hash_neighbours(self.table, self.coords)
+            self._lists = (start, nbr)
+        return self._lists
+
     def components(self) -> np.ndarray:
         """26-connected component id per voxel."""
+        if self.n_voxels > MERGE_MIN_VOXELS:
+            return _lists_components(*self.neighbour_lists())
         return _components(self.table, self.coords)
 
     def neighbourhood_sum(self, values: np.ndarray, radius: int = 1) -> np.ndarray:
         """Sum of a per-voxel quantity ``(V,)`` or ``(V, m)`` over each voxel's neighbourhood."""
         v = np.asarray(values, dtype=np.float64)
-        out = _neighbourhood_sum(self.table, self.coords, v.reshape(v.shape[0], int(np.prod(v.shape[1:]))), radius)
+        flat = v.reshape(v.shape[0], int(np.prod(v.shape[1:])))
+        if radius == 1 and (self._lists is not None or self.n_voxels > MERGE_MIN_VOXELS):
+            out = _lists_sum(*self.neighbour_lists(), flat)
+        else:
+            out = _neighbourhood_sum(self.table, self.coords, flat, radius)
         return out.reshape(v.shape)

@@ -106,6 +106,62 @@ def test_voxel_grid_grows_its_table():
     np.testing.assert_array_equal(g.coords[g.voxel], keys)
 
 
+@settings(max_examples=15, deadline=None)
+@given(
+    n=st.integers(0, 3000),
+    spread=st.sampled_from([2.0, 30.0, 1e7]),
+    flat=st.booleans(),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_merge_walk_neighbours_equal_the_hash_probes(n, spread, flat, seed):
+    """The sorted-key merge walk lists the same neighbours in the same order as the 27 probes,
+    so sums, components and region growing are bit-identical (also over huge extents)."""
+    from prc_slam.voxels import _hash_neighbours, _merge_neighbours, radix_argsort
+
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-spread, spread, size=(n, 3))
+    if flat:
+        pts[:, 2] = rng.uniform(0, 1.0, n)
+    g = VoxelGrid.build(pts, 0.5)
+    hs, hn = _hash_neighbours(g.table, g.coords)
+    ms, mn = _merge_neighbours(g.coords)
+    extent = (g.coords.max(axis=0) - g.coords.min(axis=0) + 3).astype(float) if n else np.ones(3)
+    if np.prod(extent) >= 2.0**62:  # linear keys would overflow int64: no lists, the grid probes
+        assert len(ms) == 0
+        import prc_slam.voxels as V
+
+        V.MERGE_MIN_VOXELS, keep = 0, V.MERGE_MIN_VOXELS
+        try:
+            ms, mn = g.neighbour_lists()  # falls back to the probes
+        finally:
+            V.MERGE_MIN_VOXELS = keep
+    np.testing.assert_array_equal(ms, hs)
+    np.testing.assert_array_equal(mn, hn)
+    full = g.neighbours(1)
+    np.testing.assert_array_equal(hn, full[full >= 0])  # row-major: each voxel's list in probe order
+    keys = rng.integers(0, 2**40, size=n)
+    np.testing.assert_array_equal(keys[radix_argsort(keys)], np.sort(keys))
+
+
+def test_large_grid_sums_components_and_segments_as_with_probes():
+    from prc_slam.voxels import _components, _neighbourhood_sum
+
+    pts = np.concatenate([RNG.uniform([0, 0, 0], [60, 60, 0.5], (60000, 3)), RNG.uniform(-5, 70, (8000, 3))])
+    g = VoxelGrid.build(pts, 0.4)
+    assert g.n_voxels > 20_000  # the merge-walk path
+    vals = RNG.random((g.n_voxels, 4))
+    np.testing.assert_array_equal(g.neighbourhood_sum(vals), _neighbourhood_sum(g.table, g.coords, vals, 1))
+    np.testing.assert_array_equal(g.components(), _components(g.table, g.coords))
+    normals = RNG.normal(size=(g.n_voxels, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    normals[::7] = [0, 0, 1]
+    curv = RNG.random(g.n_voxels) * 0.1
+    a = M.region_growing(normals, curv, g.neighbours(1), 0.9, 0.05)
+    b = M.region_growing_lists(normals, curv, *g.neighbour_lists(), 0.9, 0.05)
+    np.testing.assert_array_equal(a[0], b[0])
+    assert a[1] == b[1]
+
+
 def test_local_density_hand_computed():
     # 54 points in voxel (0,0,0) and 27 in (1,0,0), voxel side 0.5 m: each voxel's 3x3x3
     # neighbourhood holds 81 points in 27 * 0.125 m^3

@@ -87,7 +87,6 @@ def _voxel_moments(points, centre, voxel, n_voxels):
     return out
 
 
-@njit(cache=True, nogil=True)
 def region_growing(normals, curvature, neighbours, cos_theta, max_curvature):
     """Smoothness-constraint region growing (Rabbani et al. 2006, as PCL implements it).
 
@@ -109,6 +108,19 @@ def region_growing(normals, curvature, neighbours, cos_theta, max_curvature):
         Segment id per unit, 0..S-1.
     n_segments : int
     """
+    nb = np.asarray(neighbours)
+    nb = nb.reshape(len(nb), -1) if nb.ndim == 1 else nb
+    keep = nb >= 0
+    start = np.zeros(len(nb) + 1, np.int64)
+    np.cumsum(keep.sum(axis=1), out=start[1:])
+    return region_growing_lists(normals, curvature, start, nb[keep].astype(np.int64), cos_theta, max_curvature)
+
+
+@njit(cache=True, nogil=True)
+def region_growing_lists(normals, curvature, start, neighbours, cos_theta, max_curvature):
+    """:func:`region_growing` with the neighbours of unit ``u`` in
+    ``neighbours[start[u]:start[u + 1]]`` (CSR lists, e.g. :meth:`VoxelGrid.neighbour_lists`),
+    visited in list order."""
     n = normals.shape[0]
     valid = ~np.isnan(normals[:, 0])
     key = np.where(valid, curvature, np.inf)
@@ -127,9 +139,9 @@ def region_growing(normals, curvature, neighbours, cos_theta, max_curvature):
             while head < tail:
                 s = queue[head]
                 head += 1
-                for k in range(neighbours.shape[1]):
-                    q = neighbours[s, k]
-                    if q < 0 or seg[q] >= 0 or not valid[q]:
+                for k in range(start[s], start[s + 1]):
+                    q = neighbours[k]
+                    if seg[q] >= 0 or not valid[q]:
                         continue
                     dot = abs(
                         normals[s, 0] * normals[q, 0] + normals[s, 1] * normals[q, 1] + normals[s, 2] * normals[q, 2]
@@ -166,8 +178,8 @@ def voxel_segments(
     grid: VoxelGrid, normals: np.ndarray, curvature: np.ndarray, theta_deg: float, max_curvature: float
 ) -> np.ndarray:
     """Region growing over 26-connected voxels; segment id per voxel."""
-    nb = grid.neighbours(1).astype(np.int32)
-    seg, _ = region_growing(normals, curvature, nb, np.cos(np.radians(theta_deg)), max_curvature)
+    start, nb = grid.neighbour_lists()
+    seg, _ = region_growing_lists(normals, curvature, start, nb, np.cos(np.radians(theta_deg)), max_curvature)
     return seg
 
 
