@@ -182,6 +182,33 @@ def test_normals_curvature_and_degenerate_cases():
         assert np.isnan(n).all() and c[0] == 1.0
 
 
+@settings(max_examples=60, deadline=None)
+@given(
+    w=st.lists(st.one_of(st.just(0.0), st.floats(1e-9, 10.0)), min_size=3, max_size=3),  # m^2
+    tie=st.sampled_from([None, (0, 1), (1, 2), (0, 2)]),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_jacobi_eigh3_agrees_with_lapack(w, tie, seed):
+    """The 3x3 Jacobi solver of the normals gives LAPACK's eigenvalues and (up to sign, where
+    the smallest one is simple) its smallest eigenvector, on random rotations of given spectra
+    (repeated eigenvalues included)."""
+    w = np.array(w)
+    if tie is not None:
+        w[tie[1]] = w[tie[0]]
+    q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    cov = (q * w) @ q.T
+    cov = 0.5 * (cov + cov.T)
+    a, v, ev = cov.copy(), np.empty((3, 3)), np.empty(3)
+    assert M._eigh3(a, v, ev)
+    ref_w, ref_v = np.linalg.eigh(cov)
+    scale = max(np.abs(w).max(), 1e-300)
+    np.testing.assert_allclose(ev, ref_w, atol=1e-13 * scale)
+    np.testing.assert_allclose(v.T @ v, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(cov @ v, v * ev, atol=1e-12 * scale)
+    if ref_w[1] - ref_w[0] > 1e-6 * scale:
+        assert abs(abs(v[:, 0] @ ref_v[:, 0]) - 1) < 1e-9
+
+
 def test_region_growing_splits_perpendicular_planes_and_isolates_missing_normals():
     normals = np.array([[0, 0, 1], [0, 0, 1], [0.0, 0.05, 1], [1, 0, 0], [1, 0, 0], [np.nan] * 3], float)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
