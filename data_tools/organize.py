@@ -760,6 +760,7 @@ class Organizer:
         self.clean_rings: bool | None = None
         self._concentration = 1.0
         self._cut: float | None = None
+        self._sensor: tuple[tuple, SpinningSensor] | None = None
         self.frames = 0
         self.warnings_total = 0
 
@@ -1166,14 +1167,7 @@ class Organizer:
         self, xyz, ok, rng, te, slot, rep, rows, cols, s, a0, times, intensity, name, source, frame_time,
         gt_point_labels, gt_point_instance, gt_pose, report, collisions,
     ):  # fmt: skip
-        sensor = SpinningSensor.create(
-            np.arctan(self.beam_te) if self.beam_te is not None and len(self.beam_te) == rows else np.zeros(rows),
-            cols,
-            beam_azimuth=s * (TWO_PI / cols) * (self.phase - 0.5),
-            azimuth0=a0,
-            direction=s,
-            sweep_period=self.sweep_period,
-        )
+        sensor = self._sensor_model(rows, cols, s, a0)
         inten = None
         if intensity is not None:
             src = np.asarray(intensity)
@@ -1188,6 +1182,19 @@ class Organizer:
             gt_point_labels, gt_point_instance, gt_pose, report, collisions, slot_times_given=times is not None,
         )  # fmt: skip
         return scan
+
+    def _sensor_model(self, rows: int, cols: int, s: int, a0: float) -> SpinningSensor:
+        """The sequence's sensor model, one object for as long as its parameters hold (its
+        slot directions are then computed once per sequence, not once per sweep)."""
+        altitude = np.arctan(self.beam_te) if self.beam_te is not None and len(self.beam_te) == rows else np.zeros(rows)
+        beam_azimuth = s * (TWO_PI / cols) * (self.phase - 0.5)
+        key = (rows, cols, s, a0, self.sweep_period, altitude.tobytes(), beam_azimuth.tobytes())
+        if self._sensor is None or self._sensor[0] != key:
+            sensor = SpinningSensor.create(
+                altitude, cols, beam_azimuth=beam_azimuth, azimuth0=a0, direction=s, sweep_period=self.sweep_period
+            )
+            self._sensor = (key, sensor)
+        return self._sensor[1]
 
     def _slot_times(self, times, rep, rows, cols):
         """Per-slot times: the representative's; empty slots take their column's mean time

@@ -143,8 +143,12 @@ class SpinningSensor(SensorModel):
 
     def directions(self) -> np.ndarray:
         az = self.azimuth()
-        el = np.broadcast_to(self.altitude[:, None], az.shape)
-        return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1)
+        cos_el = np.cos(self.altitude)[:, None]  # per beam: the trigonometry once per row
+        out = np.empty((*az.shape, 3))
+        np.multiply(cos_el, np.cos(az), out=out[..., 0])
+        np.multiply(cos_el, np.sin(az), out=out[..., 1])
+        out[..., 2] = np.sin(self.altitude)[:, None]
+        return out
 
     def row_step(self) -> np.ndarray:
         """Angle (rad) between each beam and its nearest neighbouring beam, ``float64[rows]``."""

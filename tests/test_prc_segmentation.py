@@ -33,6 +33,26 @@ def test_components_u_shape_merges_and_wraps():
     assert kernels.connected_components(m2, True)[1] == 1
 
 
+@settings(max_examples=80, deadline=None)
+@given(
+    st.integers(1, 9).flatmap(
+        lambda rows: st.integers(1, 40).flatmap(
+            lambda cols: st.lists(st.booleans(), min_size=rows * cols, max_size=rows * cols).map(
+                lambda v: np.array(v, bool).reshape(rows, cols)
+            )
+        )
+    ),
+    st.booleans(),
+)
+def test_components_by_runs_equal_pixelwise_union_find(m, wrap):
+    """The run-based labelling gives the pixel-wise one's labels exactly (raster order of
+    each component's first pixel), with and without the wrap."""
+    lab, n = kernels.connected_components(m, wrap)
+    ref, n_ref = kernels.connected_components_within(m, np.zeros((1, 1, 3)), np.inf, wrap)
+    assert n == n_ref
+    np.testing.assert_array_equal(lab, ref)
+
+
 def test_hole_filling_takes_most_common_label_of_8_neighbourhood():
     lab = np.array([[1, 1, 2], [2, 0, 2], [0, 2, 0]], dtype=np.int32)
     holes = np.zeros_like(lab, bool)

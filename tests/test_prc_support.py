@@ -95,12 +95,15 @@ def test_xi_to_infinity_nothing_is_noise(r, wrap):
     assert _support(r, cfg, wrap).all()
 
 
+_RANGES = st.one_of(st.just(0.0), st.floats(0.125, 30.0, width=32))
+
+
 @settings(max_examples=60, deadline=None)
 @given(
-    arrays(
-        np.float32,
-        st.tuples(st.integers(1, 7), st.integers(1, 25)),
-        elements=st.one_of(st.just(0.0), st.floats(0.125, 30.0, width=32)),
+    st.one_of(
+        # narrow images: the per-slot path; wide ones (> 2 * reach + 1 columns): the row-wise one
+        arrays(np.float32, st.tuples(st.integers(1, 7), st.integers(1, 25)), elements=_RANGES),
+        arrays(np.float32, st.tuples(st.integers(1, 5), st.integers(26, 70)), elements=_RANGES),
     ),
     st.floats(0.01, 5.0),
     st.floats(0.01, 5.0),
@@ -108,7 +111,8 @@ def test_xi_to_infinity_nothing_is_noise(r, wrap):
 )
 def test_fused_kernel_equals_reference_kernels(r, xi_s, xi_p, wrap):
     """The one-pass kernel gives the same S_b and G_b as the plain counting kernel of eqs.
-    (5)-(8) and the separate eq. (9) kernel."""
+    (5)-(8) and the separate eq. (9) kernel, on narrow images (neighbourhoods that overlap
+    across the wrap, counted slot by slot) and wide ones (counted row by row)."""
     cfg = PRCConfig(xi_s=xi_s, xi_p=xi_p, gradient_axes="both")
     xs, xp = support_thresholds(r, cfg, None)
     c_adj, c_in = kernels.support_counts(r, xs, xp, 4, wrap)

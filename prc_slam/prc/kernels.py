@@ -156,6 +156,129 @@ def _support_met(ranges, r, c, xi_s, xi_p, half_in, need_in, need_adj, wrap, uni
 
 
 @njit(cache=True, nogil=True)
+def _padded(ranges, xi_s, wrap):
+    """Copies of ``ranges`` and ``xi_s`` with one column of padding each side (the other end
+    of the row when ``wrap``, else empty) and one row of empty slots above and below."""
+    R, C = ranges.shape
+    pr = np.zeros((R + 2, C + 2), np.float32)
+    pt = np.zeros((R + 2, C + 2), np.float32)
+    for r in range(R):
+        for c in range(C):
+            pr[r + 1, c + 1] = ranges[r, c]
+            pt[r + 1, c + 1] = xi_s[r, c]
+        if wrap:
+            pr[r + 1, 0] = ranges[r, C - 1]
+            pt[r + 1, 0] = xi_s[r, C - 1]
+            pr[r + 1, C + 1] = ranges[r, 0]
+            pt[r + 1, C + 1] = xi_s[r, 0]
+    return pr, pt
+
+
+@njit(cache=True, nogil=True)
+def _support_rows(ranges, pr, pt, xi_p, half_in, need_in, need_adj, wrap, uniform, reach):
+    """The two conditions of eq. (4) for every slot, counted row by row without branches (the
+    loops vectorise): the same neighbourhoods as :func:`support_counts`, for images with more
+    than ``2 max(reach, half_in) + 1`` columns (no slot is then its own or a double neighbour).
+
+    In-slice (eq. 8): each row's returns are packed (column, range, threshold), padded by
+    ``half_in`` entries on each side (the other end of the row when ``wrap``, else entries too
+    far to count); the neighbours of a return are the ``half_in`` packed entries on each side
+    within ``max(reach, half_in)`` columns, which are the paper's slots when ``reach <=
+    half_in`` and the closest returns otherwise. Adjacent slice (eq. 7): columns ``c-1..c+1``
+    of the rows above and below, read from the padded copies ``pr, pt`` of ``ranges, xi_s``
+    (:func:`_padded`).
+
+    Returns
+    -------
+    in_met, adj_met : bool arrays, shape (rows, cols), False for slots without a return
+    """
+    R, C = ranges.shape
+    h = half_in
+    span = max(reach, half_in)
+    far = 4 * C + 4 * span + 4
+    in_met = np.zeros((R, C), np.bool_)
+    adj_met = np.zeros((R, C), np.bool_)
+    pos = np.empty(C + 2 * h, np.int64)
+    val = np.empty(C + 2 * h, np.float32)
+    thr = np.empty(C + 2 * h, np.float32)
+    idx = np.empty(C, np.int64)
+    cnt = np.zeros(C, np.int32)
+    for r in range(R):
+        # ---- in-slice (eq. 8): pack the row's returns, pad, count over shifted views
+        m = 0
+        for c in range(C):
+            if ranges[r, c] > 0.0:
+                idx[m] = c
+                m += 1
+        if m == 0:
+            continue
+        for k in range(m):
+            c = idx[k]
+            pos[h + k] = c
+            val[h + k] = ranges[r, c]
+            thr[h + k] = xi_p[r, c]
+        for t in range(h):  # entries -h..-1 and m..m+h-1
+            if wrap:
+                src = (t - h) % m
+                pos[t] = idx[src] + (t - h - src) // m * C
+                val[t] = ranges[r, idx[src]]
+                thr[t] = xi_p[r, idx[src]]
+                src = (m + t) % m
+                pos[h + m + t] = idx[src] + (m + t - src) // m * C
+                val[h + m + t] = ranges[r, idx[src]]
+                thr[h + m + t] = xi_p[r, idx[src]]
+            else:
+                pos[t] = -far
+                val[t] = 0.0
+                thr[t] = 0.0
+                pos[h + m + t] = far
+                val[h + m + t] = 0.0
+                thr[h + m + t] = 0.0
+        n = cnt[:m]
+        n[:] = 0
+        p0 = pos[h : h + m]
+        v0 = val[h : h + m]
+        t0 = thr[h : h + m]
+        for j in range(1, h + 1):
+            pa = pos[h + j : h + j + m]
+            va = val[h + j : h + j + m]
+            ta = thr[h + j : h + j + m]
+            pb = pos[h - j : h - j + m]
+            vb = val[h - j : h - j + m]
+            tb = thr[h - j : h - j + m]
+            if uniform:
+                for k in range(m):
+                    n[k] += np.int32(pa[k] - p0[k] <= span) * np.int32(abs(v0[k] - va[k]) < t0[k]) + np.int32(
+                        p0[k] - pb[k] <= span
+                    ) * np.int32(abs(v0[k] - vb[k]) < t0[k])
+            else:
+                for k in range(m):
+                    n[k] += np.int32(pa[k] - p0[k] <= span) * np.int32(
+                        abs(v0[k] - va[k]) < max(t0[k], ta[k])
+                    ) + np.int32(p0[k] - pb[k] <= span) * np.int32(abs(v0[k] - vb[k]) < max(t0[k], tb[k]))
+        for k in range(m):
+            in_met[r, idx[k]] = n[k] >= need_in
+        # ---- adjacent slice (eq. 7): columns c-1, c, c+1 of the rows above and below
+        n = cnt[:C]
+        n[:] = 0
+        v0 = pr[r + 1, 1 : C + 1]
+        t0 = pt[r + 1, 1 : C + 1]
+        for q in (r, r + 2):
+            for d in range(3):
+                va = pr[q, d : d + C]
+                ta = pt[q, d : d + C]
+                if uniform:
+                    for c in range(C):
+                        n[c] += np.int32(va[c] > 0.0) * np.int32(abs(v0[c] - va[c]) < t0[c])
+                else:
+                    for c in range(C):
+                        n[c] += np.int32(va[c] > 0.0) * np.int32(abs(v0[c] - va[c]) < max(t0[c], ta[c]))
+        for c in range(C):
+            adj_met[r, c] = (n[c] >= need_adj) & (v0[c] > 0.0)
+    return in_met, adj_met
+
+
+@njit(cache=True, nogil=True)
 def support_and_gradient(
     ranges,
     xi_s,
@@ -196,6 +319,33 @@ def support_and_gradient(
     sup = np.zeros((R, C), np.bool_)
     grad = np.zeros((R, C), np.bool_)
     one_sided = np.zeros((R, C), np.bool_)
+    if C > 2 * max(reach, half_in) + 1:
+        # row-wise counting (vectorised); every neighbourhood fits in a row without overlap
+        pr, _pt = _padded(ranges, xi_s, wrap)
+        in_met, adj_met = _support_rows(ranges, pr, _pt, xi_p, half_in, need_in, need_adj, wrap, uniform, reach)
+        for r in range(R):
+            v0 = pr[r + 1, 1 : C + 1]
+            left = pr[r + 1, 0:C]
+            right = pr[r + 1, 2 : C + 2]
+            up = pr[r, 1 : C + 1]
+            down = pr[r + 2, 1 : C + 1]
+            for c in range(C):
+                s_ok = in_met[r, c] & adj_met[r, c]
+                sup[r, c] = s_ok
+                g = _gradient_break(left[c], v0[c], right[c], alpha, d_c, literal)
+                if both_axes:
+                    g = g | _gradient_break(up[c], v0[c], down[c], alpha, d_c, literal)
+                grad[r, c] = s_ok & g
+            for c in range(C):
+                if v0[c] > 0.0 and not sup[r, c]:
+                    if second:
+                        in2, adj2 = _support_met(
+                            ranges, r, c, xi_s2, xi_p2, half_in, need_in, need_adj, wrap, False, reach
+                        )
+                        one_sided[r, c] = in2 or adj2
+                    else:
+                        one_sided[r, c] = in_met[r, c] or adj_met[r, c]
+        return sup, grad, one_sided
     for r in range(R):
         for c in range(C):
             ri = ranges[r, c]
@@ -302,17 +452,78 @@ def _union(parent, a, b):
 
 @njit(cache=True, nogil=True)
 def connected_components(mask, wrap):
-    """4-connected components of a binary image (Section II-D), two-pass union-find.
+    """4-connected components of a binary image (Section II-D), by union-find over the runs
+    of each row: a run joins the runs of the row above that share a column with it.
 
     Labels are ``1..n`` in raster order of each component's first pixel; background is 0.
     With ``wrap`` the first and last columns are neighbours (a full sensor revolution).
+    Equal to :func:`connected_components_within` with ``max_dist = inf`` (the pixel-wise
+    form, which tests compare it with).
 
     Returns
     -------
     labels : int32 array, shape (rows, cols)
     n : int
     """
-    return connected_components_within(mask, np.zeros((1, 1, 3)), np.inf, wrap)
+    R, C = mask.shape
+    cap = R * (C // 2 + 1) + 1  # runs per row <= ceil(C / 2); one spare for the branch-free writes
+    start = np.empty(cap, np.int32)
+    end = np.empty(cap, np.int32)
+    first = np.empty(R + 1, np.int64)
+    nr = 0
+    for r in range(R):
+        first[r] = nr
+        row = mask[r]
+        prev = False
+        for c in range(C):
+            cur = row[c]
+            start[nr] = c  # kept only where a run starts (branch-free)
+            nr += np.int64(cur & (not prev))
+            prev = cur
+        # ends
+        k = first[r]
+        prev = False
+        for c in range(C):
+            cur = row[c]
+            end[k] = c
+            k += np.int64(prev & (not cur))
+            prev = cur
+        if prev:
+            end[k] = C
+    first[R] = nr
+    parent = np.arange(nr).astype(np.int32)
+    for r in range(1, R):
+        i, i_end = first[r], first[r + 1]
+        j, j_end = first[r - 1], first[r]
+        while i < i_end and j < j_end:
+            if end[j] <= start[i]:
+                j += 1
+            elif end[i] <= start[j]:
+                i += 1
+            else:
+                _union(parent, i, j)
+                if end[j] < end[i]:
+                    j += 1
+                else:
+                    i += 1
+    if wrap and C > 1:
+        for r in range(R):
+            a, b = first[r], first[r + 1]
+            if b > a and start[a] == 0 and end[b - 1] == C:
+                _union(parent, a, b - 1)
+    final = np.zeros(nr, np.int32)
+    lab = np.zeros((R, C), np.int32)
+    k = 0
+    for r in range(R):
+        for q in range(first[r], first[r + 1]):
+            root = _find(parent, q)
+            if final[root] == 0:
+                k += 1
+                final[root] = k
+            v = final[root]
+            for c in range(start[q], end[q]):
+                lab[r, c] = v
+    return lab, k
 
 
 @njit(cache=True, nogil=True)
