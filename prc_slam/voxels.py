@@ -196,24 +196,36 @@ def _linear_keys(coords):
 
 
 @njit(cache=True, nogil=True)
-def _merge_neighbours(coords):
-    """3x3x3 neighbour lists (CSR, the voxel itself included) in the order of
-    :func:`_neighbours` without the empty slots: a merge walk over the voxels sorted by linear
-    key, one monotone pointer per (dx, dy) column. ``start`` is empty when the keys overflow."""
+def _sorted_keys(coords):
+    """Voxels sorted by linear key: the order, the sorted keys and the key offsets of the nine
+    (dx, dy) columns around a voxel (dx, then dy ascending); an empty order when the keys would
+    overflow."""
     nv = coords.shape[0]
     keys, ny, nz = _linear_keys(coords)
+    offs = np.empty(9, np.int64)
     if ny < 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int32)
+        return np.zeros(0, np.int64), keys, offs
     order = radix_argsort(keys)
     sk = np.empty(nv, np.int64)
     for i in range(nv):
         sk[i] = keys[order[i]]
-    offs = np.empty(9, np.int64)
     k = 0
     for dx in range(-1, 2):
         for dy in range(-1, 2):
             offs[k] = dx * ny * nz + dy * nz
             k += 1
+    return order, sk, offs
+
+
+@njit(cache=True, nogil=True)
+def _merge_neighbours(coords):
+    """3x3x3 neighbour lists (CSR, the voxel itself included) in the order of
+    :func:`_neighbours` without the empty slots: a merge walk over the voxels sorted by linear
+    key, one monotone pointer per (dx, dy) column. ``start`` is empty when the keys overflow."""
+    nv = coords.shape[0]
+    order, sk, offs = _sorted_keys(coords)
+    if len(order) < nv:
+        return np.zeros(0, np.int64), np.zeros(0, np.int32)
     # pass 1: list lengths; pass 2: the lists, each at its voxel's place in input order
     start = np.zeros(nv + 1, np.int64)
     ptr = np.zeros(9, np.int64)
@@ -246,6 +258,32 @@ def _merge_neighbours(coords):
                 a += 1
                 p += 1
     return start, nbr
+
+
+@njit(cache=True, nogil=True)
+def _merge_sum(coords, values):
+    """:func:`_neighbourhood_sum` (radius 1) by one merge walk, without lists (same order of
+    addition, so bit-identical). ``ok`` is False when the keys would overflow."""
+    nv, m = values.shape
+    out = np.zeros((nv, m))
+    order, sk, offs = _sorted_keys(coords)
+    if len(order) < nv:
+        return out, False
+    ptr = np.zeros(9, np.int64)
+    for i in range(nv):
+        v = order[i]
+        for o in range(9):
+            t = sk[i] + offs[o]
+            p = ptr[o]
+            while p < nv and sk[p] < t - 1:
+                p += 1
+            ptr[o] = p
+            while p < nv and sk[p] <= t + 1:
+                u = order[p]
+                for c in range(m):
+                    out[v, c] += values[u, c]
+                p += 1
+    return out, True
 
 
 @njit(cache=True, nogil=True)
@@ -365,8 +403,11 @@ class VoxelGrid:
         """Sum of a per-voxel quantity ``(V,)`` or ``(V, m)`` over each voxel's neighbourhood."""
         v = np.asarray(values, dtype=np.float64)
         flat = v.reshape(v.shape[0], int(np.prod(v.shape[1:])))
-        if radius == 1 and (self._lists is not None or self.n_voxels > MERGE_MIN_VOXELS):
-            out = _lists_sum(*self.neighbour_lists(), flat)
-        else:
+        ok = False
+        if radius == 1 and self._lists is not None:
+            out, ok = _lists_sum(*self._lists, flat), True
+        elif radius == 1 and self.n_voxels > MERGE_MIN_VOXELS:
+            out, ok = _merge_sum(self.coords, flat)
+        if not ok:
             out = _neighbourhood_sum(self.table, self.coords, flat, radius)
         return out.reshape(v.shape)

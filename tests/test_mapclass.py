@@ -150,7 +150,10 @@ def test_large_grid_sums_components_and_segments_as_with_probes():
     g = VoxelGrid.build(pts, 0.4)
     assert g.n_voxels > 20_000  # the merge-walk path
     vals = RNG.random((g.n_voxels, 4))
-    np.testing.assert_array_equal(g.neighbourhood_sum(vals), _neighbourhood_sum(g.table, g.coords, vals, 1))
+    probes = _neighbourhood_sum(g.table, g.coords, vals, 1)
+    np.testing.assert_array_equal(g.neighbourhood_sum(vals), probes)  # one merge walk
+    g.neighbour_lists()
+    np.testing.assert_array_equal(g.neighbourhood_sum(vals), probes)  # on the lists
     np.testing.assert_array_equal(g.components(), _components(g.table, g.coords))
     normals = RNG.normal(size=(g.n_voxels, 3))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)

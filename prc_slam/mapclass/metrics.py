@@ -237,6 +237,7 @@ def voxel_normals(points: np.ndarray, voxel: float) -> tuple[VoxelGrid, np.ndarr
     grid = VoxelGrid.build(points, voxel)
     centre = points.mean(axis=0) if len(points) else np.zeros(3)
     sums = _voxel_moments(points, centre, grid.voxel, grid.n_voxels)
+    grid.neighbour_lists()  # kept on the grid: the sums here, the region growing next
     normals, curvature = _normals_from_sums(grid.neighbourhood_sum(sums))
     return grid, normals, curvature
 

@@ -67,7 +67,9 @@ def distance_to(points: np.ndarray, targets: np.ndarray, voxel: float, limit: fl
         return np.full(len(points), np.inf)
     tgrid = VoxelGrid.build(targets, voxel)
     pgrid = VoxelGrid.build(points, voxel)
-    d, _ = cKDTree((tgrid.coords + 0.5) * voxel).query((pgrid.coords + 0.5) * voxel, distance_upper_bound=limit)
+    d, _ = cKDTree((tgrid.coords + 0.5) * voxel).query(
+        (pgrid.coords + 0.5) * voxel, distance_upper_bound=limit, workers=-1
+    )
     return d[pgrid.voxel]
 
 
@@ -156,8 +158,24 @@ def ground_height_grid(ground: np.ndarray, cell: float, radius: int) -> tuple[Vo
     flat = np.column_stack([ground[:, :2], np.zeros(len(ground))])
     grid = VoxelGrid.build(flat, cell)
     sums = np.column_stack([np.bincount(grid.voxel, weights=ground[:, 2]), grid.counts])
-    agg = grid.neighbourhood_sum(sums, radius)  # a flat grid: only the z = 0 layer is occupied
+    agg = _planar_sum(grid.table, grid.coords, sums, radius)  # a flat grid: only the z = 0 layer is occupied
     return grid, agg[:, 0] / agg[:, 1]
+
+
+@njit(cache=True, nogil=True)
+def _planar_sum(table, coords, values, radius):
+    """:meth:`VoxelGrid.neighbourhood_sum` of a flat grid (every voxel at z = 0): the
+    ``(2r+1)^2`` cells of its layer, added in the same order (the other layers are empty)."""
+    nv, m = values.shape
+    out = np.zeros((nv, m))
+    for v in range(nv):
+        for dx in range(-radius, radius + 1):
+            for dy in range(-radius, radius + 1):
+                u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, 0)
+                if u >= 0:
+                    for j in range(m):
+                        out[v, j] += values[u, j]
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -181,7 +199,9 @@ def height_above_ground(points: np.ndarray, ground: np.ndarray, cell: float = 1.
     out[has] = points[has, 2] - gz[idx[has]]
     # cells beyond the ground grid: nearest ground cell within the radius
     if (~has).any():
-        d, j = cKDTree((grid.coords[:, :2] + 0.5) * cell).query(points[~has, :2], distance_upper_bound=radius * cell)
+        d, j = cKDTree((grid.coords[:, :2] + 0.5) * cell).query(
+            points[~has, :2], distance_upper_bound=radius * cell, workers=-1
+        )
         ok = np.isfinite(d)
         sub = np.flatnonzero(~has)[ok]
         out[sub] = points[sub, 2] - gz[j[ok]]
