@@ -255,6 +255,32 @@ def test_segment_voxels_and_compact():
     np.testing.assert_array_equal(segment_voxels(pts, seg, 3, 1.0), [1, 2, 1])  # seg 0: both in x = 0
 
 
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(1, 400), n_seg=st.integers(1, 30), limit=st.floats(0.2, 3.0), seed=st.integers(0, 2**31 - 1))
+def test_segment_voxels_and_grid_distance_match_their_definitions(n, n_seg, limit, seed):
+    """Distinct voxels per segment = distinct (voxel, segment) pairs; the one-grid building
+    distance = a kd-tree between separately built grids of the two sets."""
+    from scipy.spatial import cKDTree
+
+    from prc_slam.mapclass.objects import distance_to, grid_distance
+
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-3, 3, size=(n, 3))
+    seg = rng.integers(0, n_seg, n)
+    g = VoxelGrid.build(pts, 0.33)
+    pairs = np.unique(np.column_stack([g.voxel, seg]), axis=0)
+    np.testing.assert_array_equal(segment_voxels(pts, seg, n_seg, 0.33), np.bincount(pairs[:, 1], minlength=n_seg))
+    query, target = rng.random(n) < 0.6, rng.random(n) < 0.3
+    d = grid_distance(g, query, target, limit)
+    if target.any():
+        tg, qg = VoxelGrid.build(pts[target], 0.33), VoxelGrid.build(pts[query], 0.33)
+        ref, _ = cKDTree((tg.coords + 0.5) * 0.33).query((qg.coords + 0.5) * 0.33, distance_upper_bound=limit)
+        np.testing.assert_array_equal(d, ref[qg.voxel])
+        np.testing.assert_array_equal(distance_to(pts[query], pts[target], 0.33, limit), ref[qg.voxel])
+    else:
+        assert np.isinf(d).all() and len(d) == query.sum()
+
+
 # ---- classes ------------------------------------------------------------------------------
 
 

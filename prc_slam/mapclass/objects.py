@@ -53,11 +53,40 @@ def compact(segment: np.ndarray) -> tuple[np.ndarray, int]:
     return _compact(segment, int(segment.max()) + 1)
 
 
-def segment_voxels(points: np.ndarray, segment: np.ndarray, n_segments: int, voxel: float) -> np.ndarray:
-    """Number of distinct voxels of side ``voxel`` each segment occupies (O(N), hashed)."""
-    grid = VoxelGrid.build(points, voxel)
-    pairs = VoxelGrid.build(np.column_stack([grid.voxel, segment, np.zeros(len(segment))]).astype(np.float64), 1.0)
-    return np.bincount(pairs.coords[:, 1], minlength=n_segments)
+@njit(cache=True, nogil=True)
+def _distinct_per_segment(segment, voxel, n_segments, n_voxels):
+    """Distinct voxels per segment: the points grouped by segment (counting sort, O(N + S)),
+    each segment stamps the voxels it visits."""
+    n = segment.shape[0]
+    start = np.zeros(n_segments + 1, np.int64)
+    for i in range(n):
+        start[segment[i] + 1] += 1
+    for s in range(n_segments):
+        start[s + 1] += start[s]
+    fill = start[:-1].copy()
+    members = np.empty(n, np.int64)
+    for i in range(n):
+        members[fill[segment[i]]] = i
+        fill[segment[i]] += 1
+    stamp = np.full(n_voxels, -1, np.int64)
+    out = np.zeros(n_segments, np.int64)
+    for s in range(n_segments):
+        for j in range(start[s], start[s + 1]):
+            v = voxel[members[j]]
+            if stamp[v] != s:
+                stamp[v] = s
+                out[s] += 1
+    return out
+
+
+def segment_voxels(
+    points: np.ndarray, segment: np.ndarray, n_segments: int, voxel: float, grid: VoxelGrid | None = None
+) -> np.ndarray:
+    """Number of distinct voxels of side ``voxel`` each segment occupies (O(N)); ``grid``: the
+    points' grid of that side when already built."""
+    grid = VoxelGrid.build(points, voxel) if grid is None else grid
+    seg = np.asarray(segment, dtype=np.int64)
+    return _distinct_per_segment(seg, grid.voxel, int(n_segments), grid.n_voxels)
 
 
 def distance_to(points: np.ndarray, targets: np.ndarray, voxel: float, limit: float) -> np.ndarray:
@@ -65,12 +94,28 @@ def distance_to(points: np.ndarray, targets: np.ndarray, voxel: float, limit: fl
     ``inf`` beyond ``limit`` (the paper's building-voxel distance, Sec. 4.2)."""
     if len(targets) == 0 or len(points) == 0:
         return np.full(len(points), np.inf)
-    tgrid = VoxelGrid.build(targets, voxel)
-    pgrid = VoxelGrid.build(points, voxel)
-    d, _ = cKDTree((tgrid.coords + 0.5) * voxel).query(
-        (pgrid.coords + 0.5) * voxel, distance_upper_bound=limit, workers=-1
-    )
-    return d[pgrid.voxel]
+    grid = VoxelGrid.build(np.concatenate([points, targets]), voxel)
+    query = np.r_[np.ones(len(points), bool), np.zeros(len(targets), bool)]
+    return grid_distance(grid, query, ~query, limit)
+
+
+def grid_distance(grid: VoxelGrid, query: np.ndarray, target: np.ndarray, limit: float) -> np.ndarray:
+    """:func:`distance_to` on one grid of all the points: for the ``query`` points, the
+    distance from their voxel's centre to the nearest voxel centre holding a ``target`` point,
+    ``inf`` beyond ``limit``. The same distances as building one grid of each set (voxels are
+    the same cubes), without building them."""
+    if not target.any() or not query.any():
+        return np.full(int(np.count_nonzero(query)), np.inf)
+    has_target = np.zeros(grid.n_voxels, bool)
+    has_target[grid.voxel[target]] = True
+    qvox = grid.voxel[query]
+    asked = np.zeros(grid.n_voxels, bool)
+    asked[qvox] = True
+    ask = np.flatnonzero(asked)
+    d = np.full(grid.n_voxels, np.inf)
+    centres = (grid.coords + 0.5) * grid.size
+    d[ask], _ = cKDTree(centres[has_target]).query(centres[ask], distance_upper_bound=limit, workers=-1)
+    return d[qvox]
 
 
 def detect_buildings(
@@ -108,10 +153,11 @@ def detect_buildings(
     """
     seg, ns = compact(segment)
     size = np.bincount(seg, minlength=ns)
+    grid = VoxelGrid.build(points, voxel)
     if min_segment_points is not None:
         large = size >= min_segment_points
     else:
-        large = segment_voxels(points, seg, ns, voxel) >= min_segment_voxels
+        large = segment_voxels(points, seg, ns, voxel, grid) >= min_segment_voxels
     vert = np.bincount(seg, weights=verticality, minlength=ns) / np.maximum(size, 1)
     lo, hi = segment_bounds(seg, points, ns)
     reach = np.hypot(hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1])
@@ -127,12 +173,12 @@ def detect_buildings(
     # green: points of large segments near the building voxels
     cand = large[seg] & ~building
     if cand.any():
-        d = distance_to(np.compress(cand, points, axis=0), np.compress(building, points, axis=0), voxel, near)
+        d = grid_distance(grid, cand, building, near)
         building[np.flatnonzero(cand)[d <= near]] = True
     # orange: whole segments with two thirds of their points close to buildings
     rest = ~building
     if rest.any():
-        d = distance_to(np.compress(rest, points, axis=0), np.compress(building, points, axis=0), voxel, close)
+        d = grid_distance(grid, rest, building, close)
         within = np.bincount(seg[rest], weights=d <= close, minlength=ns)
         total = np.bincount(seg[rest], minlength=ns)
         join = (total > 0) & (within >= close_share * total)
