@@ -28,7 +28,7 @@ from prc_slam import labels as L
 from prc_slam.prc import kernels
 from prc_slam.prc.config import PRCConfig
 from prc_slam.prc.ground import GroundModelError, GroundResult, GroundState, column_ground
-from prc_slam.scan import Scan, SensorModel
+from prc_slam.scan import Scan, SensorModel, SpinningSensor
 
 log = logging.getLogger("prc_slam.prc")
 
@@ -451,6 +451,12 @@ def warm_up() -> None:
         config = PRCConfig(mode=mode, k=2)
         prc_block(tiny, config, wrap=True, state=PRCState())
         prc_block(tiny, config.model_copy(update={"adaptive": True}), sensor=_WarmSensor(), wrap=False)
+    # a small spinning sweep over flat ground with a wall: the column ground's kernels too
+    sensor = SpinningSensor.create(np.radians(np.linspace(2.0, -24.0, 16)), 64)
+    down = np.maximum(-np.sin(sensor.altitude), 1e-3)[:, None]
+    ranges = np.minimum(1.7 / down, 12.0) * np.ones((1, 64))
+    prc_block(ranges.astype(np.float32), PRCConfig.preset("multibeam"), sensor=sensor, wrap=True,
+              ground_state=GroundState())  # fmt: skip
 
 
 class _WarmSensor(SensorModel):
