@@ -506,7 +506,14 @@ def _scatter(az, rng, row, a0, s, inv_step, phase, rows, cols, rep):
         if r < 0:
             continue
         u = s * (az[i] - a0) * inv_step - phase[r] + 0.5
-        c = int(math.floor(u)) % cols  # noqa: RUF046 (numba: explicit int)
+        c = int(math.floor(u))  # noqa: RUF046 (numba: explicit int)
+        # u lies within about one turn of [0, cols): a subtraction spares the integer modulo
+        if c < 0:
+            c += cols
+        elif c >= cols:
+            c -= cols
+        if c < 0 or c >= cols:
+            c %= cols
         k = r * cols + c
         slot[i] = k
         per_row[r] += 1

@@ -347,14 +347,16 @@ class Scan:
                 f"{(self.sensor.rows, self.sensor.cols)}"
             )
         r = r.astype(np.float32, copy=True)
-        nan = np.isnan(r)
-        if np.isinf(r).any():
-            raise ScanError(f"{self.source}: {int(np.isinf(r).sum())} infinite range values")
-        if (r[~nan] < 0).any():
-            raise ScanError(f"{self.source}: {int((r[~nan] < 0).sum())} negative range values")
-        if nan.any():
+        n_nan = 0
+        if r.size and not (np.isfinite(lo := r.min()) and lo >= 0 and np.isfinite(r.max())):
+            nan = np.isnan(r)  # only when something is off (min/max are the fast check)
+            if np.isinf(r).any():
+                raise ScanError(f"{self.source}: {int(np.isinf(r).sum())} infinite range values")
+            if (r[~nan] < 0).any():
+                raise ScanError(f"{self.source}: {int((r[~nan] < 0).sum())} negative range values")
+            n_nan = int(nan.sum())
             r[nan] = 0.0
-        self.meta.setdefault("nan_ranges", int(nan.sum()))
+        self.meta.setdefault("nan_ranges", n_nan)
         self.ranges = r
         for name in ("intensity", "gt_labels", "gt_instance"):
             value = getattr(self, name)

@@ -16,6 +16,9 @@ def test_scan_normalises_nan_and_rejects_inf():
     s = Scan(r, sensor, source="x.bin")
     assert s.ranges[0, 1] == 0.0 and s.meta["nan_ranges"] == 1
     assert s.n_points == 4
+    assert Scan(np.ones((2, 3)), sensor).meta["nan_ranges"] == 0
+    with pytest.raises(ScanError, match=r"1 infinite"):  # -inf: below every range, caught too
+        Scan(np.array([[1.0, -np.inf, np.nan], [1, 1, 1]]), sensor)
     with pytest.raises(ScanError, match=r"x.bin: 1 infinite"):
         Scan(np.array([[1.0, np.inf, 2.0], [1, 1, 1]]), sensor, source="x.bin")
     with pytest.raises(ScanError, match="negative"):
