@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam import labels as L
@@ -198,7 +199,7 @@ def classify_map(points: np.ndarray, config: MapClassConfig | None = None) -> Ma
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must be (N, 3), got {pts.shape}")
     clock = _Clock()
-    finite = np.isfinite(pts).all(axis=1)
+    finite = _finite_rows(pts)
     n_bad = int(len(pts) - finite.sum())
     if n_bad:
         pts = np.compress(finite, pts, axis=0)
@@ -217,6 +218,15 @@ def classify_map(points: np.ndarray, config: MapClassConfig | None = None) -> Ma
         np.zeros(len(finite)), np.zeros(len(finite)), clock.seconds, n_bad, scale, below, messages,
     )  # fmt: skip
     out.labels[finite], out.segment[finite], out.density[finite], out.verticality[finite] = lab, seg, density, vert
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _finite_rows(points):
+    """``np.isfinite(points).all(axis=1)`` in one pass."""
+    out = np.empty(points.shape[0], np.bool_)
+    for i in range(points.shape[0]):
+        out[i] = np.isfinite(points[i, 0]) and np.isfinite(points[i, 1]) and np.isfinite(points[i, 2])
     return out
 
 

@@ -24,6 +24,22 @@ def _grid_min(points, x0, y0, inv_cell, nx, ny):
 
 
 @njit(cache=True, nogil=True)
+def _xy_bounds(points):
+    """Minimum and maximum of x and y (``points[:, :2].min(axis=0)``, ``.max(axis=0)`` in one
+    pass; numpy's column reductions of an (N, 3) array are ~10x slower)."""
+    lo = np.array([np.inf, np.inf])
+    hi = np.array([-np.inf, -np.inf])
+    for i in range(points.shape[0]):
+        for j in range(2):
+            v = points[i, j]
+            if v < lo[j]:
+                lo[j] = v
+            if v > hi[j]:
+                hi[j] = v
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
 def _point_mask(points, x0, y0, inv_cell, zmin, ground_cell, tolerance):
     out = np.empty(points.shape[0], np.bool_)
     for i in range(points.shape[0]):
@@ -108,7 +124,7 @@ def detect_ground(
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) == 0:
         return np.zeros(0, dtype=bool)
-    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    lo, hi = _xy_bounds(pts)
     nx, ny = (np.floor((hi - lo) / cell).astype(np.int64) + 2).tolist()  # +1 spare for rounding
     zmin = _grid_min(pts, lo[0], lo[1], 1.0 / cell, nx, ny)
     w = 2 * int(np.ceil(local_radius / cell)) + 1
