@@ -11,9 +11,9 @@ outliers (uniform random range, labelled noise).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import open3d as o3d
 from pydantic import BaseModel, ConfigDict, Field
 
 from data_tools.sim.mesh import FOLIAGE, GLASS, Mesh
@@ -21,6 +21,9 @@ from data_tools.sim.scenes import ForestParams, Scene, forest_plot, urban_street
 from data_tools.sim.sensors import SimSensor, make_sensor
 from data_tools.sim.trajectory import Trajectory, vehicle_trajectory, walking_trajectory
 from prc_slam import labels as L
+
+if TYPE_CHECKING:
+    import open3d as o3d
 
 # per-slot noise kinds recorded in the ground truth
 CLEAN, MIXED, OUTLIER, DROP_GLASS, DROP_GRAZING, DROP_RANGE, DROP_DARK, GLASS_INSIDE, DEAD_ANGLE, MISS = range(10)
@@ -87,6 +90,8 @@ class SimFrame:
 
 
 def _scene_mesh_to_o3d(mesh: Mesh, mask: np.ndarray) -> tuple[o3d.t.geometry.RaycastingScene, np.ndarray]:
+    import open3d as o3d  # here, not at the top: reading a simulated sequence needs no ray caster
+
     scene = o3d.t.geometry.RaycastingScene()
     idx = np.flatnonzero(mask).astype(np.int64)
     if len(idx):
@@ -163,6 +168,8 @@ class Simulator:
         sway = a * np.sin(2 * np.pi * 0.4 * t + self._wind_phase)[:, None] * self._wind_dir
         flutter = a * np.sin(2 * np.pi * 1.7 * t + 1.3 * self._wind_phase)[:, None] * self._wind_flutter
         verts[self._wind_vids] += sway + flutter
+        import open3d as o3d
+
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(
             o3d.core.Tensor(verts.astype(np.float32)),
@@ -172,6 +179,8 @@ class Simulator:
 
     def _cast(self, origins: np.ndarray, dirs: np.ndarray, moving) -> tuple[np.ndarray, np.ndarray]:
         """Nearest hit distance and global triangle index (-1: none) of each ray."""
+        import open3d as o3d
+
         rays = o3d.core.Tensor(np.concatenate([origins, dirs], axis=1).astype(np.float32))
         out = self._static.cast_rays(rays)
         t = out["t_hit"].numpy().astype(np.float64)

@@ -21,6 +21,7 @@ import importlib.util
 import logging
 import os
 import tempfile
+import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -84,6 +85,9 @@ def open_client(
         )
         client = Client(cluster)
         say(f"dask: local cluster of {n} worker process{'es' if n > 1 else ''} (1 thread each)")
+    t0 = time.perf_counter()
+    client.run(warm_worker)  # every worker at once, before any task is timed
+    say(f"dask: workers ready in {time.perf_counter() - t0:.1f} s (modules imported, kernels loaded)")
     link = client.dashboard_link if dashboard else ""
     say(f"dask dashboard: {link}" if link else "dask dashboard: not available (install bokeh>=3.1 for it)")
     try:
@@ -92,6 +96,24 @@ def open_client(
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def warm_worker() -> None:
+    """Import the jobs' modules and load every numba kernel of the per-frame path in a worker,
+    so that a worker's first task costs what the others cost (run once per worker when the
+    client opens: a fresh process otherwise spends seconds on this in its first task)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot  # the reports' plots
+
+    from prc_slam.config import Config
+    from prc_slam.jobs import batch  # noqa: F401  (the job modules)
+    from prc_slam.odometry.compare import warm_up_kernels
+    from prc_slam.prc.algorithm import warm_up
+
+    warm_up()
+    warm_up_kernels(Config())
 
 
 # ---------------------------------------------------------------------------------------------

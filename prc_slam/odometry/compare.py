@@ -233,7 +233,7 @@ def _select(name: str, pts: np.ndarray, labels: np.ndarray | None, frame: Classi
     raise ValueError(f"unknown variant {name!r}")
 
 
-def _warm_up_kernels(config: Config) -> None:
+def warm_up_kernels(config: Config) -> None:
     """Compile (or load) the numba kernels of the filter, the deskewing and the guard before
     anything is timed."""
     from prc_slam.odometry.classaware import GroupVoxelMap
@@ -287,7 +287,7 @@ class OdometryVariants:
             for v in variants
         }
         warm_up()
-        _warm_up_kernels(config)
+        warm_up_kernels(config)
         if "prc+classaware" in variants:
             try:
                 classaware.warm_up()
