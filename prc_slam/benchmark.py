@@ -406,6 +406,12 @@ def bench_peers(
                 med = float(np.median(c))
                 ground[f"{k}_counts"] = [int(x) for x in c]
                 ground[f"{k}_count_dev_pct"] = [float((c.min() - med) / med * 100), float((c.max() - med) / med * 100)]
+        if counts["prc"] and len(counts["patchwork"]) == len(counts["prc"]):
+            # the scene's own change of visible ground shows in both; their ratio is PRC's stability
+            ratio = np.array(counts["prc"], float) / np.maximum(np.array(counts["patchwork"], float), 1.0)
+            dev = (ratio / np.median(ratio) - 1.0) * 100.0
+            ground["prc_over_patchwork_count_dev_pct"] = [float(dev.min()), float(dev.max())]
+            ground["prc_patchwork_count_correlation"] = float(np.corrcoef(counts["prc"], counts["patchwork"])[0, 1])
         if truth:
             ground["prc"]["solid_as_noise_pct"] = solid_noise / max(solid, 1) * 100
             ground["prc_steps_f1"] = {k: _prf(np.concatenate(v), t_all)["f1"] for k, v in steps.items()}
