@@ -321,8 +321,8 @@ def support_and_gradient(
     one_sided = np.zeros((R, C), np.bool_)
     if C > 2 * max(reach, half_in) + 1:
         # row-wise counting (vectorised); every neighbourhood fits in a row without overlap
-        pr, _pt = _padded(ranges, xi_s, wrap)
-        in_met, adj_met = _support_rows(ranges, pr, _pt, xi_p, half_in, need_in, need_adj, wrap, uniform, reach)
+        pr, pt = _padded(ranges, xi_s, wrap)
+        in_met, adj_met = _support_rows(ranges, pr, pt, xi_p, half_in, need_in, need_adj, wrap, uniform, reach)
         for r in range(R):
             v0 = pr[r + 1, 1 : C + 1]
             left = pr[r + 1, 0:C]
