@@ -86,8 +86,12 @@ def open_client(
         client = Client(cluster)
         say(f"dask: local cluster of {n} worker process{'es' if n > 1 else ''} (1 thread each)")
     t0 = time.perf_counter()
-    client.run(warm_worker)  # every worker at once, before any task is timed
-    say(f"dask: workers ready in {time.perf_counter() - t0:.1f} s (modules imported, kernels loaded)")
+    try:
+        client.run(warm_worker)  # every worker at once, before any task is timed
+    except Exception as exc:  # e.g. a remote worker without prc_slam: its tasks will say so
+        say(f"dask: could not prepare the workers ({type(exc).__name__}: {exc}); tasks will load what they need")
+    else:
+        say(f"dask: workers ready in {time.perf_counter() - t0:.1f} s (modules imported, kernels loaded)")
     link = client.dashboard_link if dashboard else ""
     say(f"dask dashboard: {link}" if link else "dask dashboard: not available (install bokeh>=3.1 for it)")
     try:
