@@ -313,6 +313,32 @@ def test_height_above_ground_under_a_car_without_ground_beneath():
     assert abs(hag[0] - 0.5) < 0.01 and np.isnan(hag[1])
 
 
+@settings(max_examples=20, deadline=None)
+@given(
+    n=st.integers(1, 600),
+    cell=st.sampled_from([0.7, 1.0, 2.5]),
+    radius=st.integers(1, 4),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_nearest_cell_centre_is_the_kd_tree_query(n, cell, radius, seed):
+    """The grid search finds the cell a kd-tree on the centres finds (distance_upper_bound is
+    strict), on clouds with holes and points far outside."""
+    from scipy.spatial import cKDTree
+
+    from prc_slam.mapclass.objects import nearest_cell_centre
+
+    rng = np.random.default_rng(seed)
+    ground = rng.uniform(-10, 10, size=(n, 3))
+    ground = ground[np.hypot(ground[:, 0], ground[:, 1]) > 4]  # a hole in the middle
+    pts = rng.uniform(-20, 20, size=(300, 3))
+    if len(ground) == 0:
+        return
+    grid = VoxelGrid.build(np.column_stack([ground[:, :2], np.zeros(len(ground))]), cell)
+    j = nearest_cell_centre(grid, pts, cell, radius * cell)
+    d, ref = cKDTree((grid.coords[:, :2] + 0.5) * cell).query(pts[:, :2], distance_upper_bound=radius * cell)
+    np.testing.assert_array_equal(j, np.where(np.isfinite(d), ref, -1))
+
+
 def test_buildings_take_the_wall_and_small_segments_on_it_not_far_ones():
     w = wall(0, 20, 0, 0, 6)
     frame = box(10, -0.3, 1.0, 0.2, 2.0, 3.0, step=0.05)  # a window ledge 0.3 m off the wall

@@ -243,14 +243,66 @@ def height_above_ground(points: np.ndarray, ground: np.ndarray, cell: float = 1.
     out = np.full(len(points), np.nan)
     has = idx >= 0
     out[has] = points[has, 2] - gz[idx[has]]
-    # cells beyond the ground grid: nearest ground cell within the radius
+    # cells beyond the ground grid: nearest ground cell centre closer than radius * cell
     if (~has).any():
-        d, j = cKDTree((grid.coords[:, :2] + 0.5) * cell).query(
-            points[~has, :2], distance_upper_bound=radius * cell, workers=-1
-        )
-        ok = np.isfinite(d)
-        sub = np.flatnonzero(~has)[ok]
-        out[sub] = points[sub, 2] - gz[j[ok]]
+        sub = np.flatnonzero(~has)
+        j = nearest_cell_centre(grid, np.take(points, sub, axis=0), cell, radius * cell)
+        ok = j >= 0
+        out[sub[ok]] = points[sub[ok], 2] - gz[j[ok]]
+    return out
+
+
+def nearest_cell_centre(grid: VoxelGrid, points: np.ndarray, cell: float, bound: float) -> np.ndarray:
+    """Index of the occupied cell of the flat ``grid`` whose centre lies nearest each point in
+    x-y, -1 where none is closer than ``bound`` (m): the query of a kd-tree on the cell centres
+    with ``distance_upper_bound``, done as a grid search. The points are grouped by their own
+    cell, and each group tests only the occupied cells of the window around it, so points deep
+    inside a cell-less area (under a large roof) cost one lookup. Of equidistant cells the
+    lowest index wins (a kd-tree takes the first it visits)."""
+    own = VoxelGrid.build(np.column_stack([points[:, :2], np.zeros(len(points))]), cell)
+    reach = int(np.ceil(bound / cell)) + 1
+    start, cand = _window_cells(grid.table, grid.coords, own.coords, reach)
+    return _nearest_in_lists(points, own.voxel, start, cand, grid.coords, cell, bound)
+
+
+@njit(cache=True, nogil=True)
+def _window_cells(table, coords, query, reach):
+    """CSR lists of the occupied cells within ``reach`` cells (x and y) of each query cell."""
+    nq = query.shape[0]
+    start = np.zeros(nq + 1, np.int64)
+    out = np.empty(64, np.int64)
+    m = 0
+    for q in range(nq):
+        for dx in range(-reach, reach + 1):
+            for dy in range(-reach, reach + 1):
+                u = find(table, coords, query[q, 0] + dx, query[q, 1] + dy, 0)
+                if u >= 0:
+                    if m == out.shape[0]:
+                        grown = np.empty(2 * m, np.int64)
+                        grown[:m] = out
+                        out = grown
+                    out[m] = u
+                    m += 1
+        start[q + 1] = m
+    return start, out[:m].copy()
+
+
+@njit(cache=True, nogil=True)
+def _nearest_in_lists(points, qcell, start, cand, coords, cell, bound):
+    n = points.shape[0]
+    out = np.full(n, -1, np.int64)
+    b2 = bound * bound
+    for i in range(n):
+        q = qcell[i]
+        best = b2
+        for k in range(start[q], start[q + 1]):
+            u = cand[k]
+            ex = points[i, 0] - (coords[u, 0] + 0.5) * cell
+            ey = points[i, 1] - (coords[u, 1] + 0.5) * cell
+            d2 = ex * ex + ey * ey
+            if d2 < best or (d2 == best and out[i] >= 0 and u < out[i]):
+                best = d2
+                out[i] = u
     return out
 
 
