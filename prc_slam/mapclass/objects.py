@@ -106,16 +106,67 @@ def grid_distance(grid: VoxelGrid, query: np.ndarray, target: np.ndarray, limit:
     the same cubes), without building them."""
     if not target.any() or not query.any():
         return np.full(int(np.count_nonzero(query)), np.inf)
-    has_target = np.zeros(grid.n_voxels, bool)
-    has_target[grid.voxel[target]] = True
-    qvox = grid.voxel[query]
-    asked = np.zeros(grid.n_voxels, bool)
-    asked[qvox] = True
+    has_target, asked = _mark_voxels(grid.voxel, query, target, grid.n_voxels)
+    targets = (grid.coords[has_target] + 0.5) * grid.size
     ask = np.flatnonzero(asked)
+    centres = (grid.coords[ask] + 0.5) * grid.size
+    # only voxels with a target voxel centre in the 3x3x3 cubes of side ``limit`` around theirs
+    # can be closer than ``limit`` (the side is a hair longer, against rounding in the cube
+    # index): the kd-tree answers for those alone
+    side = limit * (1.0 + 1e-9)
+    coarse = VoxelGrid.build(targets, side)
+    near = _any_in_cube(coarse.table, coarse.coords, centres, 1.0 / side)
     d = np.full(grid.n_voxels, np.inf)
-    centres = (grid.coords + 0.5) * grid.size
-    d[ask], _ = cKDTree(centres[has_target]).query(centres[ask], distance_upper_bound=limit, workers=-1)
-    return d[qvox]
+    if near.any():
+        d[ask[near]], _ = cKDTree(targets).query(centres[near], distance_upper_bound=limit, workers=-1)
+    return _gather_marked(grid.voxel, query, d)
+
+
+@njit(cache=True, nogil=True)
+def _mark_voxels(voxel, query, target, n_voxels):
+    """Voxels holding a ``target`` point, voxels holding a ``query`` point."""
+    has_target = np.zeros(n_voxels, np.bool_)
+    asked = np.zeros(n_voxels, np.bool_)
+    for i in range(voxel.shape[0]):
+        if target[i]:
+            has_target[voxel[i]] = True
+        if query[i]:
+            asked[voxel[i]] = True
+    return has_target, asked
+
+
+@njit(cache=True, nogil=True)
+def _gather_marked(voxel, mask, values):
+    """``values[voxel[mask]]``."""
+    out = np.empty(np.count_nonzero(mask), values.dtype)
+    k = 0
+    for i in range(voxel.shape[0]):
+        if mask[i]:
+            out[k] = values[voxel[i]]
+            k += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _any_in_cube(table, coords, points, inv_size):
+    """Whether the 3x3x3 cubes of a grid (side ``1 / inv_size``) around each point's cube hold
+    any occupied one."""
+    out = np.zeros(points.shape[0], np.bool_)
+    for i in range(points.shape[0]):
+        x = np.int64(np.floor(points[i, 0] * inv_size))
+        y = np.int64(np.floor(points[i, 1] * inv_size))
+        z = np.int64(np.floor(points[i, 2] * inv_size))
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    if find(table, coords, x + dx, y + dy, z + dz) >= 0:
+                        out[i] = True
+                        break
+                if out[i]:
+                    break
+            if out[i]:
+                break
+    return out
 
 
 def detect_buildings(
