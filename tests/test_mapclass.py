@@ -223,6 +223,21 @@ def test_region_growing_splits_perpendicular_planes_and_isolates_missing_normals
     assert seg[0] == seg[1] == seg[2] != seg[3] == seg[4] != seg[5]
 
 
+@settings(max_examples=25, deadline=None)
+@given(
+    n=st.integers(0, 20000),
+    levels=st.integers(1, 10**9),
+    extra=st.lists(st.sampled_from([0.0, -0.0, np.inf, 1e-300, 5e-324, 1.0]), max_size=50),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_stable_argsort_is_the_mergesort(n, levels, extra, seed):
+    """The radix argsort of the seeds' curvature keeps ties in input order like mergesort."""
+    rng = np.random.default_rng(seed)
+    key = np.r_[rng.integers(0, levels, n) / levels * 0.1, extra]
+    rng.shuffle(key)
+    np.testing.assert_array_equal(M.stable_argsort(key), np.argsort(key, kind="mergesort"))
+
+
 def test_region_growing_stops_at_high_curvature():
     normals = np.tile([0.0, 0.0, 1.0], (3, 1))
     nb = np.array([[1, -1], [0, 2], [1, -1]])

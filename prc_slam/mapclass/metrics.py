@@ -184,6 +184,48 @@ def region_growing(normals, curvature, neighbours, cos_theta, max_curvature):
 
 
 @njit(cache=True, nogil=True)
+def stable_argsort(key):
+    """``np.argsort(key, kind="mergesort")`` of float64 keys without NaN: an LSD radix sort
+    (16-bit digits, indices carried along, passes whose digit is the same for all keys skipped)
+    of the keys' bit patterns mapped to unsigned order (-0.0 taken as 0.0, as a comparison sort
+    sees them). Equal keys keep their input order, so the result is the mergesort's."""
+    n = key.shape[0]
+    if n < 4096 or np.isnan(key).any():
+        return np.argsort(key, kind="mergesort")
+    bits = (key + 0.0).view(np.uint64)  # + 0.0: -0.0 -> 0.0
+    sign = np.uint64(1) << np.uint64(63)
+    k1 = np.empty(n, np.uint64)
+    for i in range(n):
+        b = bits[i]
+        k1[i] = ~b if b & sign else b | sign
+    i1 = np.arange(n)
+    k2 = np.empty(n, np.uint64)
+    i2 = np.empty(n, np.int64)
+    cnt = np.empty(65536, np.int64)
+    for shift in range(0, 64, 16):
+        sh = np.uint64(shift)
+        cnt[:] = 0
+        for i in range(n):
+            cnt[np.int64((k1[i] >> sh) & np.uint64(0xFFFF))] += 1
+        if cnt.max() == n:
+            continue  # every key has this digit
+        tot = 0
+        for d in range(65536):
+            c = cnt[d]
+            cnt[d] = tot
+            tot += c
+        for i in range(n):
+            d = np.int64((k1[i] >> sh) & np.uint64(0xFFFF))
+            j = cnt[d]
+            k2[j] = k1[i]
+            i2[j] = i1[i]
+            cnt[d] = j + 1
+        k1, k2 = k2, k1
+        i1, i2 = i2, i1
+    return i1
+
+
+@njit(cache=True, nogil=True)
 def region_growing_lists(normals, curvature, start, neighbours, cos_theta, max_curvature):
     """:func:`region_growing` with the neighbours of unit ``u`` in
     ``neighbours[start[u]:start[u + 1]]`` (CSR lists, e.g. :meth:`VoxelGrid.neighbour_lists`),
@@ -191,7 +233,7 @@ def region_growing_lists(normals, curvature, start, neighbours, cos_theta, max_c
     n = normals.shape[0]
     valid = ~np.isnan(normals[:, 0])
     key = np.where(valid, curvature, np.inf)
-    order = np.argsort(key, kind="mergesort")
+    order = stable_argsort(key)
     seg = np.full(n, -1, np.int64)
     queue = np.empty(n, np.int64)
     ns = 0
