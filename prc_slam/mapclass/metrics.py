@@ -39,64 +39,66 @@ def local_density(points: np.ndarray, voxel: float) -> tuple[np.ndarray, VoxelGr
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _jacobi_rotation(a, v, p, q):
-    """One Jacobi rotation zeroing ``a[p, q]`` of the symmetric 3x3 ``a``; ``v`` collects the
-    eigenvectors (Golub & Van Loan, Alg. 8.5.2 with the smaller rotation angle)."""
-    apq = a[p, q]
+def _jacobi_rotation(app, aqq, apq, arp, arq, vp0, vp1, vp2, vq0, vq1, vq2):
+    """One Jacobi rotation zeroing ``a_pq`` of a symmetric 3x3 matrix (Golub & Van Loan,
+    Alg. 8.4.1 / 8.5.2, the smaller rotation angle), on scalars: the diagonal pair, the other
+    two off-diagonals of rows p and q (``r`` the third index) and eigenvector columns p and q."""
     if apq == 0.0:
-        return
-    theta = (a[q, q] - a[p, p]) / (2.0 * apq)
+        return app, aqq, apq, arp, arq, vp0, vp1, vp2, vq0, vq1, vq2
+    theta = (aqq - app) / (2.0 * apq)
     t = 1.0 / (abs(theta) + np.sqrt(theta * theta + 1.0))
     if theta < 0:
         t = -t
     c = 1.0 / np.sqrt(t * t + 1.0)
     s = t * c
-    for k in range(3):
-        akp, akq = a[k, p], a[k, q]
-        a[k, p] = c * akp - s * akq
-        a[k, q] = s * akp + c * akq
-    for k in range(3):
-        apk, aqk = a[p, k], a[q, k]
-        a[p, k] = c * apk - s * aqk
-        a[q, k] = s * apk + c * aqk
-    for k in range(3):
-        vkp, vkq = v[k, p], v[k, q]
-        v[k, p] = c * vkp - s * vkq
-        v[k, q] = s * vkp + c * vkq
+    return (
+        app - t * apq, aqq + t * apq, 0.0, c * arp - s * arq, s * arp + c * arq,
+        c * vp0 - s * vq0, c * vp1 - s * vq1, c * vp2 - s * vq2,
+        s * vp0 + c * vq0, s * vp1 + c * vq1, s * vp2 + c * vq2,
+    )  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
 def _eigh3(a, v, w):
-    """Eigen decomposition of the symmetric 3x3 ``a`` (overwritten) by cyclic Jacobi sweeps
-    until the off-diagonal elements are below 1e-15 of the matrix norm: ascending eigenvalues in
-    ``w``, unit eigenvectors in the columns of ``v``. A 3x3 LAPACK call through
-    ``np.linalg.eigh`` costs 2-3 us (allocation, workspace query) against ~0.4 us here;
+    """Eigen decomposition of the symmetric 3x3 ``a`` by cyclic Jacobi sweeps until the
+    off-diagonal elements are below 1e-15 of the matrix norm: ascending eigenvalues in ``w``,
+    unit eigenvectors in the columns of ``v`` (``a`` is left as it was). A 3x3 LAPACK call
+    through ``np.linalg.eigh`` costs 2-3 us (allocation, workspace query) against ~0.15 us here;
     eigenvalues and vectors agree with it to ~1e-15 (eigenvector sign free). Returns False
     when the sweeps do not converge (then ``np.linalg.eigh`` decides)."""
-    v[:] = 0.0
-    v[0, 0] = v[1, 1] = v[2, 2] = 1.0
-    off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
-    norm = a[0, 0] * a[0, 0] + a[1, 1] * a[1, 1] + a[2, 2] * a[2, 2] + 2.0 * off
+    a00, a11, a22, a01, a02, a12 = a[0, 0], a[1, 1], a[2, 2], a[0, 1], a[0, 2], a[1, 2]
+    # eigenvector columns: c0 = (x0, y0, z0), c1, c2
+    x0, y0, z0, x1, y1, z1, x2, y2, z2 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+    norm = a00 * a00 + a11 * a11 + a22 * a22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)
     converged = False
     for _ in range(50):
-        off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
-        if off <= 1e-30 * norm:
+        if a01 * a01 + a02 * a02 + a12 * a12 <= 1e-30 * norm:
             converged = True
             break
-        _jacobi_rotation(a, v, 0, 1)
-        _jacobi_rotation(a, v, 0, 2)
-        _jacobi_rotation(a, v, 1, 2)
+        # (p, q) = (0, 1), r = 2: a_rp = a02, a_rq = a12; vectors: rows of columns 0 and 1
+        a00, a11, a01, a02, a12, x0, y0, z0, x1, y1, z1 = _jacobi_rotation(
+            a00, a11, a01, a02, a12, x0, y0, z0, x1, y1, z1
+        )
+        # (0, 2), r = 1: a_rp = a01, a_rq = a12
+        a00, a22, a02, a01, a12, x0, y0, z0, x2, y2, z2 = _jacobi_rotation(
+            a00, a22, a02, a01, a12, x0, y0, z0, x2, y2, z2
+        )
+        # (1, 2), r = 0: a_rp = a01, a_rq = a02
+        a11, a22, a12, a01, a02, x1, y1, z1, x2, y2, z2 = _jacobi_rotation(
+            a11, a22, a12, a01, a02, x1, y1, z1, x2, y2, z2
+        )
+    d = (a00, a11, a22)
     i0, i1, i2 = 0, 1, 2  # ascending order of the diagonal
-    if a[i0, i0] > a[i1, i1]:
+    if d[i0] > d[i1]:
         i0, i1 = i1, i0
-    if a[i1, i1] > a[i2, i2]:
+    if d[i1] > d[i2]:
         i1, i2 = i2, i1
-    if a[i0, i0] > a[i1, i1]:
+    if d[i0] > d[i1]:
         i0, i1 = i1, i0
-    w[0], w[1], w[2] = a[i0, i0], a[i1, i1], a[i2, i2]
-    for k in range(3):
-        a[k, 0], a[k, 1], a[k, 2] = v[k, i0], v[k, i1], v[k, i2]
-    v[:] = a
+    cols = ((x0, y0, z0), (x1, y1, z1), (x2, y2, z2))
+    w[0], w[1], w[2] = d[i0], d[i1], d[i2]
+    for j, i in enumerate((i0, i1, i2)):
+        v[0, j], v[1, j], v[2, j] = cols[i]
     return converged
 
 
