@@ -38,13 +38,16 @@ and the paper section each follows or where it departs:
    (``min_thickness``, the 10-90 % spread across its principal axis).
 5b. Grazing surfaces: a beam meets a roof or a bonnet at a grazing angle, metres beyond the car's
    face below it (the rear window between them returns nothing), farther than any divider allows;
-   the face alone is too low for a car, the roof too small. Segments linked on at least
-   ``grazing_links`` columns, where the lower one ends in a vertical face (steeper than 45 deg)
-   and the next return up is the other one's, farther out by at most ``max_length``
-   (:func:`grazing_links`), are judged together by steps 4-6; when the whole passes, it is one
-   car, otherwise every part keeps its own verdict. Rising terrain has no vertical face and links
-   nothing. Simulated hdl64 seed 1 (a car 42 m ahead, seen from behind in all 20 sweeps):
-   40 -> 57 of 68 vehicles found; seed 0 63 -> 72 of 80; KITTI and the forests unchanged.
+   the face alone is too low for a car, the roof too small. A face (a segment standing on the
+   ground but too low for a car) and the segments above it, linked on at least ``grazing_links``
+   columns where the face ends in a vertical step (steeper than 45 deg) and the next return up
+   is the other one's, farther out by at most ``max_length`` (:func:`grazing_links`), are judged
+   together by steps 4-6; when the whole passes, it is one car, otherwise every part keeps its
+   own verdict (no chains, no roof shared by two faces). Rising terrain has no vertical face and
+   links nothing; a thin sign or wall is no face (tall enough already: on KITTI frame 9 its
+   merge with two returns 3.7 m behind it passed the thin-sheet test). Simulated hdl64 seed 1
+   (a car 42 m ahead, seen from behind in all 20 sweeps): 40 -> 57 of 68 vehicles found; seed 0
+   63 -> 72 of 80; KITTI 0-2 and the forests unchanged.
 6. Car vs vegetation (Sec. 7.1 / 7.5): vegetation makes the signed angles of a profile alternate;
    along a ring that is a large normalised second difference ``|X_a - 2 X_b + X_c| / |X_c - X_a|``
    between successive returns at least ``ring_baseline`` apart (closer ones differ by their range
@@ -61,10 +64,10 @@ and the paper section each follows or where it departs:
 Each accepted segment is one car instance with an oriented box (principal axis of its footprint).
 Curbs: :func:`detect_curbs_spinning` (Sec. 6 with the column's own steps as "vertical").
 Measured (``OnlineDetector()``, vehicles per point; found = >= 50 % of an instance's points):
-KITTI 00 frames 0-2 (car, truck, other-vehicle) P 0.874 / R 0.778, 22 of 36 cars; simulated
-hdl64 urban, 20 sweeps: seed 0 P 0.999 / R 0.965, 72 of 80, seed 1 P 0.999 / R 0.953, 57 of 68,
-seed 2 P 0.999 / R 0.953, 80 of 111; vlp16 seed 0 P 0.948 / R 0.814, 36 of 60, seed 1 P 0.936 /
-R 0.732, 24 of 39; forest (20 sweeps) hdl64 seeds 0 / 1 0.020 / 0.036 %, vlp16 0.084 % of the
+KITTI 00 frames 0-2 (car, truck, other-vehicle) P 0.873 / R 0.775, 22 of 36 cars; simulated
+hdl64 urban, 20 sweeps: seed 0 P 0.999 / R 0.964, 72 of 80, seed 1 P 0.999 / R 0.953, 57 of 68,
+seed 2 P 1.000 / R 0.953, 80 of 111; vlp16 seed 0 P 0.948 / R 0.806, 36 of 60, seed 1 P 0.938 /
+R 0.753, 25 of 39; forest (20 sweeps) hdl64 seeds 0 / 1 0.020 / 0.036 %, vlp16 0.084 % of the
 points called vehicle.
 """
 
@@ -202,6 +205,18 @@ def segment_candidates(
                     n += 1
                     root_id[root] = n
                 seg[r, c] = root_id[root]
+    high_touch, tops = outline_tops(
+        seg, n, valid, high, xyz, rng, alt, min_gate, gate_factor, max_gate, height, top_floor
+    )
+    return seg, n, high_touch, tops
+
+
+@njit(cache=True, nogil=True)
+def outline_tops(seg, n, valid, high, xyz, rng, alt, min_gate, gate_factor, max_gate, height, top_floor):
+    """Step 4 per segment 1..n of ``seg`` (rows in elevation order): the number of its column
+    tops at least ``top_floor`` above the ground whose next return up is ``high`` and within the
+    gate (or which lie on the highest beam), and the number of those column tops."""
+    R, C = seg.shape
     high_touch = np.zeros(n + 1, np.int64)
     tops = np.zeros(n + 1, np.int64)
     for c in range(C):
@@ -226,7 +241,7 @@ def segment_candidates(
                 g = max(min_gate, min(max_gate, gate_factor * rng[r, c] * (alt[up] - alt[r])))
                 if _d2(xyz, r, c, up, c) <= g * g:
                     high_touch[k] += 1
-    return seg, n, high_touch, tops
+    return high_touch, tops
 
 
 @njit(cache=True, nogil=True)
@@ -599,9 +614,10 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     cnt_all = np.bincount(seg_o.ravel(), minlength=n + 1)
     veg = np.bincount(seg_o.ravel(), weights=vegetation.ravel(), minlength=n + 1)
     veg_share = veg / np.maximum(cnt_all, 1)
+    roof = hhi + np.minimum(top_gap, p.max_top_gap)
     ok = (
         (cnt >= p.min_points)
-        & (hhi + np.minimum(top_gap, p.max_top_gap) >= p.min_top)
+        & (roof >= p.min_top)
         & (top90 <= p.max_top)
         & (hlo <= p.max_bottom)
         & (length <= p.max_length)
@@ -616,31 +632,42 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     ok[0] = False
     feats = dict(
         points=cnt, bottom=hlo, top=hhi, top90=top90, length=length, width=width, thickness=thick, roughness=rough,
-        high_share=share, ring_triples=n_rough, vegetation=veg_share,
+        high_share=share, ring_triples=n_rough, vegetation=veg_share, roof=roof,
     )  # fmt: skip
     return ok, feats
 
 
-def _merge_grazing(seg_o, n, ok, high_touch, tops, xyz, height, valid, rng, gaps, vegetation, p):
-    """Step 5b: segments linked across a grazing surface on at least ``grazing_links`` columns
-    form one candidate; it replaces its parts when it passes steps 4-6 as a whole, otherwise every
-    part keeps its own verdict. Returns the instance image (rows in elevation order, 0 = no car,
-    ids 1..) and the number of merged cars."""
+def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rng, gaps, vegetation, p):
+    """Step 5b: a face (a segment standing on the ground, its lowest return within ``max_bottom``,
+    but too low for a car: ``roof``, its top plus the beam gap allowance, under ``min_top``) and
+    the segments above it (a roof, a bonnet) linked to it across a grazing surface on at least
+    ``grazing_links`` columns form one candidate; an upper part linked to two faces joins neither
+    (a roof spans no two cars), and no upper part is another's face (no chains). The candidate
+    replaces its parts when it passes steps 4-6 as a whole, otherwise every part keeps its own
+    verdict. Returns the instance image (rows in elevation order, 0 = no car, ids 1..) and the
+    number of merged cars."""
     remap = np.zeros(n + 1, np.int32)
     remap[ok] = np.arange(1, int(ok.sum()) + 1)
     if p.grazing_links <= 0 or n < 2:
         return remap[seg_o], 0
     low, up = grazing_links(seg_o, valid, xyz, p.min_gate, p.max_length)
+    face = (bottom <= p.max_bottom) & (roof < p.min_top)  # stands on the ground, too low for a car
+    sel = face[low]
+    low, up = low[sel], up[sel]
     if len(low) == 0:
         return remap[seg_o], 0
-    pair, votes = np.unique(np.minimum(low, up) * (n + 1) + np.maximum(low, up), return_counts=True)
+    pair, votes = np.unique(low * (n + 1) + up, return_counts=True)
     keep = votes >= p.grazing_links
+    a, b = pair // (n + 1), pair % (n + 1)
+    lows_of_up = np.bincount(b[keep], minlength=n + 1)
+    keep &= lows_of_up[b] == 1  # a roof spans no two cars
+    keep &= ~np.isin(b, a[keep])  # no chains: a face's roof is no other roof's face
     if not keep.any():
         return remap[seg_o], 0
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    a, b = pair[keep] // (n + 1), pair[keep] % (n + 1)
+    a, b = a[keep], b[keep]
     graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(n + 1, n + 1))
     _, comp = connected_components(graph, directed=False)
     size = np.bincount(comp, minlength=n + 1)
@@ -652,9 +679,9 @@ def _merge_grazing(seg_o, n, ok, high_touch, tops, xyz, height, valid, rng, gaps
     gid[multi] += 1
     g = len(groups)
     seg_g = gid[seg_o].astype(np.int32)
-    used = np.bincount(gid[a], weights=votes[keep], minlength=g + 1)  # tops now inside their group
-    ht_g = np.bincount(gid, weights=high_touch, minlength=g + 1)
-    tops_g = np.maximum(np.bincount(gid, weights=tops, minlength=g + 1) - used, 1)
+    ht_g, tops_g = outline_tops(
+        seg_g, g, valid, high, xyz, rng, alt, p.min_gate, p.gate_factor, p.max_gate, height, p.top_floor
+    )
     ok_g, _ = _judge(seg_g, g, ht_g, tops_g, xyz, height, valid, rng, gaps, vegetation, p)
     # final ids: accepted groups first, then accepted segments outside an accepted group
     take_g = ok_g[gid] & multi
@@ -720,7 +747,9 @@ def detect_cars_spinning(
     gaps[:-1] = np.diff(alt) if rows > 1 else 0.0
     gaps[-1] = 0.0
     ok, feats = _judge(seg_o, n, high_touch, tops, o_xyz, h_o, o_valid, rng, gaps, veg_o, p)
-    inst_o, merged = _merge_grazing(seg_o, n, ok, high_touch, tops, o_xyz, h_o, o_valid, rng, gaps, veg_o, p)
+    inst_o, merged = _merge_grazing(
+        seg_o, n, ok, feats["bottom"], feats["roof"], high, alt, o_xyz, h_o, o_valid, rng, gaps, veg_o, p
+    )
     feats["merged"] = merged
     if p.down_to > 0:
         inst_o = grow_down(inst_o, o_valid, o_xyz, np.where(np.isfinite(o_h), o_h, -np.inf), alt, p.down_to, p.min_gate)
