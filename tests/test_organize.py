@@ -409,3 +409,22 @@ def test_a_ring_field_of_one_value_is_ignored_with_a_warning():
     assert rep["method"] == "ring-major" and rep["rings"] == 16
     assert any("ring field holds one value" in w for w in rep["warnings"])
     assert slot_agreement(scan, beam, firing) == 1.0
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.lists(st.floats(-2.0, 2.0), min_size=0, max_size=130),
+    st.lists(st.floats(-3.0, 3.0), min_size=1, max_size=300),
+)
+def test_nearest_beam_counts_the_bounds_at_or_above(bounds, te):
+    """The table-guided search gives every point the number of beam bounds at or above its
+    elevation (its row), also for repeated bounds, points on a bound and far outside."""
+    from data_tools.organize import _nearest_beam
+
+    b = np.sort(np.array(bounds, float))[::-1]
+    t = np.concatenate([np.array(te), b, [1e6, -1e6]])
+    ok = np.ones(len(t), bool)
+    ok[::7] = False
+    row = _nearest_beam(t, ok, b, np.empty(len(t), np.int64))
+    expected = np.where(ok, (b[None, :] >= t[:, None]).sum(axis=1), -1)
+    np.testing.assert_array_equal(row, expected)
