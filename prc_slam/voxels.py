@@ -37,8 +37,9 @@ def _rehash(coords, nv, size):
 
 
 @njit(cache=True, nogil=True)
-def _build(points, inv_size):
-    """Voxel index per point; the table doubles whenever it is half full."""
+def _build(points, inv_size, flat=False):
+    """Voxel index per point; the table doubles whenever it is half full. ``flat``: x-y cells
+    (every z index 0, the z column is not read)."""
     n = points.shape[0]
     size = 1024
     table = np.full(size, -1, np.int64)
@@ -48,7 +49,7 @@ def _build(points, inv_size):
     for i in range(n):
         x = np.int64(np.floor(points[i, 0] * inv_size))
         y = np.int64(np.floor(points[i, 1] * inv_size))
-        z = np.int64(np.floor(points[i, 2] * inv_size))
+        z = np.int64(0) if flat else np.int64(np.floor(points[i, 2] * inv_size))
         mask = size - 1
         h = _slot(x, y, z, mask)
         while True:
@@ -367,8 +368,10 @@ class VoxelGrid:
     _lists: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     @classmethod
-    def build(cls, points: np.ndarray, size: float) -> VoxelGrid:
-        voxel, coords, table = _build(np.asarray(points, dtype=np.float64), 1.0 / size)
+    def build(cls, points: np.ndarray, size: float, flat: bool = False) -> VoxelGrid:
+        """Grid of ``points`` (N, 3) in cubes of side ``size``; ``flat``: of their x-y cells
+        (z index 0 for all; the same grid as of the points with z set to 0, without the copy)."""
+        voxel, coords, table = _build(np.asarray(points, dtype=np.float64), 1.0 / size, flat)
         return cls(size, voxel, coords, table, np.bincount(voxel, minlength=len(coords)))
 
     @property

@@ -165,6 +165,14 @@ def test_large_grid_sums_components_and_segments_as_with_probes():
     assert a[1] == b[1]
 
 
+def test_flat_grid_is_the_grid_of_the_points_on_z_0():
+    pts = RNG.uniform(-20, 20, size=(5000, 3))
+    a = VoxelGrid.build(pts, 0.7, flat=True)
+    b = VoxelGrid.build(np.column_stack([pts[:, :2], np.zeros(len(pts))]), 0.7)
+    for x, y in zip((a.voxel, a.coords, a.table, a.counts), (b.voxel, b.coords, b.table, b.counts), strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
 def test_local_density_hand_computed():
     # 54 points in voxel (0,0,0) and 27 in (1,0,0), voxel side 0.5 m: each voxel's 3x3x3
     # neighbourhood holds 81 points in 27 * 0.125 m^3

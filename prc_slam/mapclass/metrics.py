@@ -380,11 +380,38 @@ def segment_density(points: np.ndarray, segment: np.ndarray, voxel: float) -> tu
     Returns the per-voxel count and the grid (``grid.voxel`` maps points to voxels).
     """
     grid = VoxelGrid.build(points, voxel)
-    # unique (voxel, segment) pairs, grouped by voxel
-    base = np.int64(segment.max(initial=0)) + 1
-    pair = np.unique(grid.voxel * base + segment)
-    starts = np.searchsorted(pair // base, np.arange(grid.n_voxels + 1))
-    return _distinct_segments(grid.table, grid.coords, starts, pair % base), grid
+    starts, segs = _segments_per_voxel(grid.voxel, np.asarray(segment, dtype=np.int64), grid.n_voxels)
+    return _distinct_segments(grid.table, grid.coords, starts, segs), grid
+
+
+@njit(cache=True, nogil=True)
+def _segments_per_voxel(voxel, segment, n_voxels):
+    """The distinct segments of every voxel as CSR lists (``segs[starts[v]:starts[v+1]]``):
+    the points grouped by voxel (counting sort), each voxel stamps its segments. O(N)."""
+    n = voxel.shape[0]
+    first = np.zeros(n_voxels + 1, np.int64)
+    for i in range(n):
+        first[voxel[i] + 1] += 1
+    for v in range(n_voxels):
+        first[v + 1] += first[v]
+    fill = first[:-1].copy()
+    members = np.empty(n, np.int64)
+    for i in range(n):
+        members[fill[voxel[i]]] = i
+        fill[voxel[i]] += 1
+    stamp = np.full(segment.max() + 1 if n else 0, -1, np.int64)
+    starts = np.zeros(n_voxels + 1, np.int64)
+    segs = np.empty(n, np.int64)
+    m = 0
+    for v in range(n_voxels):
+        for j in range(first[v], first[v + 1]):
+            s = segment[members[j]]
+            if stamp[s] != v:
+                stamp[s] = v
+                segs[m] = s
+                m += 1
+        starts[v + 1] = m
+    return starts, segs[:m]
 
 
 def fragmentation(points: np.ndarray, fragmented: np.ndarray, voxel: float) -> np.ndarray:

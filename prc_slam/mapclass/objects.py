@@ -239,7 +239,7 @@ def detect_buildings(
     # yellow: large segments above building points (roofs)
     rest = ~building & large[seg]
     if rest.any() and building.any():
-        cols = VoxelGrid.build(np.column_stack([points[:, :2], np.zeros(len(points))]), 1.0)
+        cols = VoxelGrid.build(points, 1.0, flat=True)
         top = np.full(cols.n_voxels, -np.inf)
         np.maximum.at(top, cols.voxel[building], points[building, 2])
         above = (points[:, 2] >= top[cols.voxel] - 1.0) & np.isfinite(top[cols.voxel])
@@ -252,8 +252,7 @@ def detect_buildings(
 
 def ground_height_grid(ground: np.ndarray, cell: float, radius: int) -> tuple[VoxelGrid, np.ndarray]:
     """Mean ground height per xy cell over its ``(2r+1)^2`` neighbourhood."""
-    flat = np.column_stack([ground[:, :2], np.zeros(len(ground))])
-    grid = VoxelGrid.build(flat, cell)
+    grid = VoxelGrid.build(ground, cell, flat=True)
     sums = np.column_stack([np.bincount(grid.voxel, weights=ground[:, 2]), grid.counts])
     agg = _planar_sum(grid.table, grid.coords, sums, radius)  # a flat grid: only the z = 0 layer is occupied
     return grid, agg[:, 0] / agg[:, 1]
@@ -310,7 +309,7 @@ def nearest_cell_centre(grid: VoxelGrid, points: np.ndarray, cell: float, bound:
     cell, and each group tests only the occupied cells of the window around it, so points deep
     inside a cell-less area (under a large roof) cost one lookup. Of equidistant cells the
     lowest index wins (a kd-tree takes the first it visits)."""
-    own = VoxelGrid.build(np.column_stack([points[:, :2], np.zeros(len(points))]), cell)
+    own = VoxelGrid.build(points, cell, flat=True)
     reach = int(np.ceil(bound / cell)) + 1
     start, cand = _window_cells(grid.table, grid.coords, own.coords, reach)
     return _nearest_in_lists(points, own.voxel, start, cand, grid.coords, cell, bound)
@@ -551,8 +550,7 @@ def under_crown(
     post or a sign; a wall under its roof."""
     if len(points) == 0 or not crown.any():
         return np.zeros(len(points), dtype=bool)
-    flat = np.column_stack([points[:, :2], np.zeros(len(points))])
-    grid = VoxelGrid.build(flat, cell)
+    grid = VoxelGrid.build(points, cell, flat=True)
     top = np.full(grid.n_voxels, -np.inf)
     np.maximum.at(top, grid.voxel[crown], points[crown, 2])
     best = _planar_max(grid.table, grid.coords, top, reach)
