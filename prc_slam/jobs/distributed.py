@@ -82,6 +82,9 @@ def open_client(
             processes=True,
             dashboard_address=":8787" if dashboard else None,
             silence_logs=logging.ERROR,
+            # numba's parallel kernels (the online detectors) take every core by default: share
+            # them out, or the workers' threads fight over the cores (several times slower)
+            env={"NUMBA_NUM_THREADS": str(max(1, default_workers() // n))},
         )
         client = Client(cluster)
         say(f"dask: local cluster of {n} worker process{'es' if n > 1 else ''} (1 thread each)")
