@@ -266,21 +266,22 @@ def _classify_finite(
         return labels, segment, density, vert
     # Sec. 3.2 / 5: normals and segmentation (and each segment's size in normal voxels)
     if cfg.normals == "voxels":
-        grid, normals_v, curv_v = M.voxel_normals(p, scale.normal_voxel)
-        normals = np.take(normals_v, grid.voxel, axis=0)
+        grid, normals, curv_v = M.voxel_normals(p, scale.normal_voxel)
+        normal_of = grid.voxel  # every point takes its voxel's normal
         clock.lap("normals")
-        seg_v = M.voxel_segments(grid, normals_v, curv_v, cfg.theta_deg, cfg.max_curvature)
+        seg_v = M.voxel_segments(grid, normals, curv_v, cfg.theta_deg, cfg.max_curvature)
         seg = seg_v[grid.voxel]
         seg_size = np.bincount(seg_v)[seg]
     else:
         normals, curv, nb = M.knn_normals(p, cfg.knn, cfg.knn_radius)
+        normal_of = None
         clock.lap("normals")
         seg, ns = M.region_growing(normals, curv, nb, np.cos(np.radians(cfg.theta_deg)), cfg.max_curvature)
         seg_size = segment_voxels(p, seg, ns, scale.normal_voxel)[seg]
     segment[idx] = seg
     clock.lap("segmentation")
     # Sec. 3.4 verticality on the density voxels (inliers only)
-    v = M.verticality(normals, dgrid.voxel[idx], dgrid.n_voxels)
+    v = M.verticality(normals, dgrid.voxel[idx], dgrid.n_voxels, normal_of)
     vert[idx] = v
     clock.lap("verticality")
     # Sec. 4.1 ground
