@@ -42,6 +42,15 @@ def test_surface_density_hand_computed():
     assert surface_density(np.zeros((0, 3))) == 0.0
 
 
+@settings(max_examples=40, deadline=None)
+@given(counts=st.lists(st.integers(1, 60), min_size=1, max_size=40))
+def test_point_median_is_the_median_over_the_points(counts):
+    from prc_slam.mapclass.density import point_median
+
+    c = np.array(counts)
+    assert point_median(c) == float(np.median(np.repeat(c, c)))
+
+
 def test_sizes_and_threshold_hand_computed():
     # 50 points in 3x3x3 voxels of a 2 points/m^2 surface: (3 v)^2 * 2 = 50 -> v = 5/3 m
     assert size_for(2.0, 50.0, 0.33) == pytest.approx(5 / 3)

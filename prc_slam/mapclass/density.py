@@ -36,12 +36,27 @@ def surface_density(points: np.ndarray, voxel: float = 1.0, min_count: float = 8
         count = 0.0
         for shift in (0.0, 0.5 * voxel):
             grid = VoxelGrid.build(pts + shift if shift else pts, voxel)
-            count = max(count, float(np.median(grid.counts[grid.voxel])))
+            count = max(count, point_median(grid.counts))
         rho = count / voxel**2
         if count >= min_count or voxel >= 8.0:
             break
         voxel = float(min(8.0, np.sqrt(min_count / max(rho, 1e-9)) * 1.2))
     return rho
+
+
+def point_median(counts: np.ndarray) -> float:
+    """``np.median(counts[grid.voxel])``, the median over the points of their voxel's count,
+    from the histogram of the counts (each voxel's count appears that many times) instead of
+    a sort of the points: the same value."""
+    counts = np.asarray(counts, dtype=np.int64)
+    weight = np.bincount(counts, weights=counts.astype(np.float64)).astype(np.int64)
+    total = int(weight.sum())
+    if total == 0:
+        return float("nan")
+    cum = np.cumsum(weight)
+    lo = int(np.searchsorted(cum, (total - 1) // 2, side="right"))  # value of sorted[(n-1)//2]
+    hi = int(np.searchsorted(cum, total // 2, side="right"))  # value of sorted[n//2]
+    return float(np.mean([lo, hi]))
 
 
 def size_for(rho: float, points_in_neighbourhood: float, floor: float) -> float:
