@@ -506,7 +506,8 @@ class SpinningCars:
     boxes: list[dict] = field(default_factory=list)
     segments: np.ndarray | None = None  # int32 (rows, cols): every candidate segment
     features: dict[str, np.ndarray] = field(default_factory=dict)  # per segment, index 0 unused
-    accepted: np.ndarray | None = None  # bool per segment
+    accepted: np.ndarray | None = None  # bool per segment (on its own, before step 5b)
+    merged: int = 0  # cars made of a face and the roof above it (step 5b)
 
 
 @njit(cache=True, nogil=True)
@@ -750,7 +751,6 @@ def detect_cars_spinning(
     inst_o, merged = _merge_grazing(
         seg_o, n, ok, feats["bottom"], feats["roof"], high, alt, o_xyz, h_o, o_valid, rng, gaps, veg_o, p
     )
-    feats["merged"] = merged
     if p.down_to > 0:
         inst_o = grow_down(inst_o, o_valid, o_xyz, np.where(np.isfinite(o_h), o_h, -np.inf), alt, p.down_to, p.min_gate)
     seg = np.empty_like(seg_o)
@@ -759,7 +759,7 @@ def detect_cars_spinning(
     instances[order] = inst_o
     mask = instances > 0
     boxes = oriented_boxes(instances, xyz)
-    return SpinningCars(mask, instances, boxes, seg, feats, ok)
+    return SpinningCars(mask, instances, boxes, seg, feats, ok, merged)
 
 
 def oriented_boxes(instances: np.ndarray, xyz: np.ndarray) -> list[dict]:
