@@ -357,9 +357,15 @@ def test_nearest_cell_centre_is_the_kd_tree_query(n, cell, radius, seed):
     if len(ground) == 0:
         return
     grid = VoxelGrid.build(np.column_stack([ground[:, :2], np.zeros(len(ground))]), cell)
+    pts = np.concatenate([pts, np.round(pts / (0.5 * cell)) * (0.5 * cell)])  # on cell borders: ties
     j = nearest_cell_centre(grid, pts, cell, radius * cell)
-    d, ref = cKDTree((grid.coords[:, :2] + 0.5) * cell).query(pts[:, :2], distance_upper_bound=radius * cell)
-    np.testing.assert_array_equal(j, np.where(np.isfinite(d), ref, -1))
+    centres = (grid.coords[:, :2] + 0.5) * cell
+    d, ref = cKDTree(centres).query(pts[:, :2], distance_upper_bound=radius * cell)
+    np.testing.assert_array_equal(j >= 0, np.isfinite(d))
+    found = j >= 0
+    ours = np.hypot(*(pts[found, :2] - centres[j[found]]).T)
+    np.testing.assert_allclose(ours, d[found], rtol=1e-12, atol=1e-12)  # the nearest distance
+    np.testing.assert_array_equal(j[:300], np.where(np.isfinite(d[:300]), ref[:300], -1))  # no ties: same cell
 
 
 def test_buildings_take_the_wall_and_small_segments_on_it_not_far_ones():

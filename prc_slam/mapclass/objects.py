@@ -311,34 +311,57 @@ def nearest_cell_centre(grid: VoxelGrid, points: np.ndarray, cell: float, bound:
     lowest index wins (a kd-tree takes the first it visits)."""
     own = VoxelGrid.build(points, cell, flat=True)
     reach = int(np.ceil(bound / cell)) + 1
-    start, cand = _window_cells(grid.table, grid.coords, own.coords, reach)
-    return _nearest_in_lists(points, own.voxel, start, cand, grid.coords, cell, bound)
+    start, cand, low = _window_cells(grid.table, grid.coords, own.coords, reach, cell, bound)
+    return _nearest_in_lists(points, own.voxel, start, cand, low, grid.coords, cell, bound)
 
 
 @njit(cache=True, nogil=True)
-def _window_cells(table, coords, query, reach):
-    """CSR lists of the occupied cells within ``reach`` cells (x and y) of each query cell."""
+def _window_cells(table, coords, query, reach, cell, bound):
+    """CSR lists of the occupied cells within ``reach`` cells (x and y) of each query cell
+    whose centre can lie closer than ``bound`` to a point of the query cell, in increasing
+    order of that lower bound (squared, ``low``; the cell taken a hair larger against rounding
+    in the cell index of a point)."""
     nq = query.shape[0]
     start = np.zeros(nq + 1, np.int64)
     out = np.empty(64, np.int64)
+    low = np.empty(64)
     m = 0
+    b2 = bound * bound
+    pad = 1e-6 * cell
     for q in range(nq):
+        x0, y0 = query[q, 0] * cell - pad, query[q, 1] * cell - pad
+        x1, y1 = (query[q, 0] + 1) * cell + pad, (query[q, 1] + 1) * cell + pad
+        first = m
         for dx in range(-reach, reach + 1):
             for dy in range(-reach, reach + 1):
                 u = find(table, coords, query[q, 0] + dx, query[q, 1] + dy, 0)
-                if u >= 0:
-                    if m == out.shape[0]:
-                        grown = np.empty(2 * m, np.int64)
-                        grown[:m] = out
-                        out = grown
-                    out[m] = u
-                    m += 1
+                if u < 0:
+                    continue
+                cx, cy = (coords[u, 0] + 0.5) * cell, (coords[u, 1] + 0.5) * cell
+                ex = x0 - cx if cx < x0 else (cx - x1 if cx > x1 else 0.0)
+                ey = y0 - cy if cy < y0 else (cy - y1 if cy > y1 else 0.0)
+                lb = ex * ex + ey * ey
+                if lb >= b2:
+                    continue
+                if m == out.shape[0]:
+                    grown = np.empty(2 * m, np.int64)
+                    grown[:m] = out
+                    out = grown
+                    grown_low = np.empty(2 * m)
+                    grown_low[:m] = low
+                    low = grown_low
+                k = m  # insertion by lower bound
+                while k > first and low[k - 1] > lb:
+                    out[k], low[k] = out[k - 1], low[k - 1]
+                    k -= 1
+                out[k], low[k] = u, lb
+                m += 1
         start[q + 1] = m
-    return start, out[:m].copy()
+    return start, out[:m].copy(), low[:m].copy()
 
 
 @njit(cache=True, nogil=True)
-def _nearest_in_lists(points, qcell, start, cand, coords, cell, bound):
+def _nearest_in_lists(points, qcell, start, cand, low, coords, cell, bound):
     n = points.shape[0]
     out = np.full(n, -1, np.int64)
     b2 = bound * bound
@@ -346,6 +369,8 @@ def _nearest_in_lists(points, qcell, start, cand, coords, cell, bound):
         q = qcell[i]
         best = b2
         for k in range(start[q], start[q + 1]):
+            if low[k] > best:
+                break  # no later cell can be as near (equidistant ones are still tested)
             u = cand[k]
             ex = points[i, 0] - (coords[u, 0] + 0.5) * cell
             ey = points[i, 1] - (coords[u, 1] + 0.5) * cell
