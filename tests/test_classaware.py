@@ -53,6 +53,38 @@ def test_correspondences_never_cross_groups_even_when_nearer():
         assert counts.sum() == sum(e >= 0 for e in expect)
 
 
+@pytest.mark.parametrize("max_dist", [0.05, 0.3, 0.9, 2.5])
+def test_pruned_search_equals_all_27_voxels(max_dist):
+    """The correspondence search skips voxels farther than its best match: the brute force's
+    nearest distance over the 27 voxels around each query (none beyond ``max_dist``), near
+    voxel faces and corners too."""
+    from prc_slam.odometry.guard import nearest_map_point
+
+    rng = np.random.default_rng(int(max_dist * 100))
+    gmap = GroupVoxelMap(0.5, 100.0, 20)
+    pts = np.round(rng.uniform(-2, 2, (3000, 3)), 2)  # on a 1 cm grid: ties and points on faces
+    groups = rng.integers(0, 2, len(pts))
+    gmap.update(pts, groups, np.eye(4))
+    table, coords, first, count, mpts = gmap.index()
+    inv = 1.0 / 0.5
+    queries = np.vstack([rng.uniform(-2, 2, (400, 3)), np.round(rng.uniform(-2, 2, (200, 3)) * 2) / 2])
+    slots = np.concatenate([np.arange(f, f + c) for f, c in zip(first, count, strict=True)])
+    vk = coords[np.repeat(np.arange(len(count)), count)]  # voxel key of each map point (slot order)
+    mp = mpts[slots]
+    for p in queries:
+        for g in (0, 1):
+            q, d2 = nearest_map_point(p, g, table, coords, first, count, mpts, inv, max_dist**2)
+            k = np.floor(p * inv).astype(np.int64)
+            near = (np.abs(vk[:, :2] - k[:2]) <= 1).all(axis=1) & (np.abs(vk[:, 2] // 8 - k[2]) <= 1)
+            near &= vk[:, 2] % 8 == g
+            dd = ((mp - p) ** 2).sum(axis=1)
+            cand = np.flatnonzero(near & (dd < max_dist**2))
+            if len(cand) == 0:
+                assert q == -1
+            else:
+                assert d2 == dd[cand].min() and q in slots[cand] and ((mpts[q] - p) ** 2).sum() == d2
+
+
 def _room(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Ground, two walls at right angles, and trunks, with their codes."""
     g = rng.uniform([-20, -20, 0], [20, 20, 0], (6000, 3))

@@ -18,9 +18,9 @@ from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam import labels as L
-from prc_slam.odometry.guard import OdometryFailure, check_pose, is_rigid
+from prc_slam.odometry.guard import OdometryFailure, check_pose, is_rigid, nearest_map_point
 from prc_slam.odometry.kiss import GuardedOdometry, OdometryConfig, kiss_config
-from prc_slam.voxels import _rehash, _slot, find
+from prc_slam.voxels import _rehash, _slot
 
 #: class groups and the codes they hold; codes not listed fall into "other"
 GROUPS: dict[str, tuple[int, ...]] = {
@@ -190,27 +190,6 @@ class GroupVoxelMap:
         return pts, groups
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _nearest(p, g, table, coords, first, count, mpts, inv_voxel, max_d2):
-    """Index of the nearest map point of group ``g`` within the 27 voxels around ``p`` and within
-    ``sqrt(max_d2)``, or -1."""
-    kx = np.int64(np.floor(p[0] * inv_voxel))
-    ky = np.int64(np.floor(p[1] * inv_voxel))
-    kz = np.int64(np.floor(p[2] * inv_voxel))
-    best, best_d2 = -1, max_d2
-    for dx in range(-1, 2):
-        for dy in range(-1, 2):
-            for dz in range(-1, 2):
-                v = find(table, coords, kx + dx, ky + dy, (kz + dz) * 8 + g)
-                if v < 0:
-                    continue
-                for q in range(first[v], first[v] + count[v]):
-                    d2 = (mpts[q, 0] - p[0]) ** 2 + (mpts[q, 1] - p[1]) ** 2 + (mpts[q, 2] - p[2]) ** 2
-                    if d2 < best_d2:
-                        best, best_d2 = q, d2
-    return best
-
-
 @njit(cache=True, nogil=True)
 def _exp_se3(dx):
     """4x4 transform of the twist ``(t, w)`` (translation first, as KISS-ICP's Sophus update)."""
@@ -259,7 +238,7 @@ def _linearise(src, src_group, weights, table, coords, first, count, mpts, inv_v
                 continue
             for k in range(3):
                 p[k] = R[k, 0] * src[i, 0] + R[k, 1] * src[i, 1] + R[k, 2] * src[i, 2] + t[k]
-            q = _nearest(p, g, table, coords, first, count, mpts, inv_voxel, max_d2)
+            q = nearest_map_point(p, g, table, coords, first, count, mpts, inv_voxel, max_d2)[0]
             if q < 0:
                 continue
             counts[c, g] += 1
