@@ -336,6 +336,25 @@ def test_height_above_ground_under_a_car_without_ground_beneath():
     assert abs(hag[0] - 0.5) < 0.01 and np.isnan(hag[1])
 
 
+def test_grid_distance_few_queries_against_many_targets():
+    """Few queries: the kd-tree holds only the targets near them; distances unchanged."""
+    from scipy.spatial import cKDTree
+
+    from prc_slam.mapclass.objects import grid_distance
+
+    wall_pts = wall(0, 30, 0.0, 0.0, 10.0)  # 60 k targets
+    probes = np.array([[5.0, 1.0, 2.0], [5.0, 1.4, 2.0], [15.0, 2.9, 5.0], [15.0, 4.0, 5.0], [-3.0, 0.0, 1.0]])
+    pts = np.concatenate([wall_pts, probes])
+    query = np.r_[np.zeros(len(wall_pts), bool), np.ones(len(probes), bool)]
+    g = VoxelGrid.build(pts, 0.33)
+    for limit in (1.5, 3.0):
+        d = grid_distance(g, query, ~query, limit)
+        tg, qg = VoxelGrid.build(wall_pts, 0.33), VoxelGrid.build(probes, 0.33)
+        ref, _ = cKDTree((tg.coords + 0.5) * 0.33).query((qg.coords + 0.5) * 0.33, distance_upper_bound=limit)
+        np.testing.assert_array_equal(d, ref[qg.voxel])
+        assert np.isfinite(d).sum() >= 2 and np.isinf(d).sum() >= 1
+
+
 @settings(max_examples=20, deadline=None)
 @given(
     n=st.integers(1, 600),

@@ -118,7 +118,11 @@ def grid_distance(grid: VoxelGrid, query: np.ndarray, target: np.ndarray, limit:
     near = _any_in_cube(coarse.table, coarse.coords, centres, 1.0 / side)
     d = np.full(grid.n_voxels, np.inf)
     if near.any():
-        d[ask[near]], _ = cKDTree(targets).query(centres[near], distance_upper_bound=limit, workers=-1)
+        asked_near = centres[near]
+        if 4 * len(asked_near) < len(targets):  # few queries: the targets near them suffice
+            qgrid = VoxelGrid.build(asked_near, side)
+            targets = targets[_any_in_cube(qgrid.table, qgrid.coords, targets, 1.0 / side)]
+        d[ask[near]], _ = cKDTree(targets).query(asked_near, distance_upper_bound=limit, workers=-1)
     return _gather_marked(grid.voxel, query, d)
 
 
