@@ -318,6 +318,49 @@ def test_ground_keeps_slopes_and_curbs_rejects_box_tops(street):
     assert detect_ground(slope).mean() > 0.99
 
 
+def _votes_along_each_line(zmin, zlocal, cell, max_slope, max_step, max_above_local):
+    """Sec. 4.1's scan lines walked one by one from their first cell (the definition)."""
+    from prc_slam.mapclass.ground import DIRECTIONS
+
+    nx, ny = zmin.shape
+    votes = np.zeros((nx, ny), np.int64)
+    for dx, dy in DIRECTIONS:
+        step = cell * np.sqrt(dx * dx + dy * dy)
+        for sx in range(nx):
+            for sy in range(ny):
+                if 0 <= sx - dx < nx and 0 <= sy - dy < ny:
+                    continue  # not the first cell of its line
+                x, y, zg, dist = sx, sy, np.nan, 0.0
+                while 0 <= x < nx and 0 <= y < ny:
+                    dist += step
+                    z = zmin[x, y]
+                    if np.isfinite(z):
+                        ok = z - zlocal[x, y] <= max_above_local
+                        if ok and not np.isnan(zg):
+                            ok = z - zg <= max_slope * dist + max_step
+                        if ok:
+                            votes[x, y] += 1
+                            zg, dist = z, 0.0
+                    x, y = x + dx, y + dy
+    return votes
+
+
+@settings(max_examples=30, deadline=None)
+@given(nx=st.integers(1, 12), ny=st.integers(1, 12), empty=st.floats(0, 0.8), seed=st.integers(0, 2**31 - 1))
+def test_scan_line_sweep_equals_walking_each_line(nx, ny, empty, seed):
+    from scipy.ndimage import minimum_filter
+
+    from prc_slam.mapclass.ground import scan_line_votes
+
+    rng = np.random.default_rng(seed)
+    bumps = rng.normal(0, 0.3, (nx, ny)) * (rng.random((nx, ny)) < 0.2)
+    zmin = np.cumsum(rng.normal(0, 0.15, (nx, ny)), axis=0) + bumps
+    zmin[rng.random((nx, ny)) < empty] = np.inf
+    zlocal = minimum_filter(zmin, size=3, mode="nearest")
+    args = (zmin, zlocal, 0.5, 0.3, 0.1, 0.5)
+    np.testing.assert_array_equal(scan_line_votes(*args), _votes_along_each_line(*args))
+
+
 def test_ground_majority_vote_needs_five_of_eight_directions():
     from prc_slam.mapclass.ground import scan_line_votes
 

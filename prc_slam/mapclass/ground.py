@@ -65,30 +65,32 @@ def scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local):
     """
     nx, ny = zmin.shape
     votes = np.zeros((nx, ny), np.int64)
+    # all lines of a direction are swept at once, row by row of the grid (each line meets a
+    # row once, in its own order), with the state of every line (last ground height, distance
+    # since) kept per line: the grid is read in memory order, not along the lines
+    zg = np.empty(nx + ny + 1)
+    dist = np.empty(nx + ny + 1)
     for d in range(DIRECTIONS.shape[0]):
         dx, dy = DIRECTIONS[d, 0], DIRECTIONS[d, 1]
         step = cell * np.sqrt(dx * dx + dy * dy)
-        for sx in range(nx):
-            for sy in range(ny):
-                px, py = sx - dx, sy - dy
-                if 0 <= px < nx and 0 <= py < ny:
-                    continue  # not a line start
-                x, y = sx, sy
-                zg = np.nan
-                dist = 0.0
-                while 0 <= x < nx and 0 <= y < ny:
-                    dist += step
-                    z = zmin[x, y]
-                    if np.isfinite(z):
-                        ok = z - zlocal[x, y] <= max_above_local
-                        if ok and not np.isnan(zg):
-                            ok = z - zg <= max_slope * dist + max_step
-                        if ok:
-                            votes[x, y] += 1
-                            zg = z
-                            dist = 0.0
-                    x += dx
-                    y += dy
+        zg[:] = np.nan
+        dist[:] = 0.0
+        for i in range(nx):
+            x = i if dx >= 0 else nx - 1 - i
+            for j in range(ny):
+                y = j if dy >= 0 else ny - 1 - j
+                # the line through (x, y): fixed x, fixed y, or a diagonal
+                line = x if dx == 0 else (y if dy == 0 else (y - x + nx if dx == dy else y + x))
+                dist[line] += step
+                z = zmin[x, y]
+                if np.isfinite(z):
+                    ok = z - zlocal[x, y] <= max_above_local
+                    if ok and not np.isnan(zg[line]):
+                        ok = z - zg[line] <= max_slope * dist[line] + max_step
+                    if ok:
+                        votes[x, y] += 1
+                        zg[line] = z
+                        dist[line] = 0.0
     return votes
 
 
