@@ -395,8 +395,16 @@ class Scan:
         return len(self.point_slot) if self.point_slot is not None else int(self.valid.sum())
 
     def slot_xyz(self) -> np.ndarray:
-        """Coordinates per slot, ``float32[rows, cols, 3]``, sensor frame."""
-        return self.xyz if self.xyz is not None else self.sensor.to_xyz(self.ranges)
+        """Coordinates per slot, ``float32[rows, cols, 3]``, sensor frame: the measured ones, else
+        computed from the ranges once (read-only: several stages of a frame share them)."""
+        if self.xyz is not None:
+            return self.xyz
+        cached = self.__dict__.get("_slot_xyz")
+        if cached is None:
+            cached = self.sensor.to_xyz(self.ranges)
+            cached.flags.writeable = False
+            self.__dict__["_slot_xyz"] = cached
+        return cached
 
     def slot_times(self) -> np.ndarray | None:
         """Timestamps broadcast to every slot, ``float64[rows, cols]``, or None."""

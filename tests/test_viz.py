@@ -213,7 +213,12 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
     try:
         import time
 
-        time.sleep(2)
+        deadline = time.monotonic() + 60  # the viewer listening (slow to start on a busy machine)
+        while time.monotonic() < deadline:
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            time.sleep(0.2)
         run = subprocess.run(
             [
                 _prc_slam_cli(),
@@ -235,3 +240,31 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
     finally:
         if receiver.poll() is None:
             receiver.kill()
+
+
+def test_viewer_that_never_answers_costs_only_the_recording(tmp_path):
+    """--connect to a port where no viewer listens: the run completes and writes its outputs,
+    with one warning that the recording was not delivered (no traceback)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # closed again: nothing listens there
+    run = subprocess.run(
+        [
+            _prc_slam_cli(),
+            "compare",
+            str(_sim(tmp_path)),
+            "--out",
+            str(tmp_path / "out"),
+            "--connect",
+            f"rerun+http://127.0.0.1:{port}/proxy",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "the recording could not be delivered" in run.stdout + run.stderr
+    assert "Traceback" not in run.stdout + run.stderr
+    assert (tmp_path / "out" / "metrics.json").is_file() and (tmp_path / "out" / "report.md").is_file()

@@ -133,7 +133,10 @@ class Viewer:
             return None
         if interrupted_at is not None:
             self.sink.warn(f"interrupted at frame {interrupted_at}: this recording is partial")
-        self.sink.rec.flush()
+        try:
+            self.sink.rec.flush()
+        except RuntimeError as exc:  # e.g. the viewer at --connect never answered: the rest stands
+            log.warning(f"Rerun: the recording could not be delivered: {str(exc).splitlines()[0]}")
         written = None
         if self.rrd is not None:
             self.sink.rec.disconnect()
