@@ -406,6 +406,16 @@ class Scan:
             self.__dict__["_slot_xyz"] = cached
         return cached
 
+    def slot_xyz64(self) -> np.ndarray:
+        """:meth:`slot_xyz` flattened to ``float64[rows * cols, 3]`` for the numba kernels, made
+        once per scan (read-only)."""
+        cached = self.__dict__.get("_slot_xyz64")
+        if cached is None:
+            cached = np.array(self.slot_xyz().reshape(-1, 3), dtype=np.float64)  # a copy
+            cached.flags.writeable = False
+            self.__dict__["_slot_xyz64"] = cached
+        return cached
+
     def slot_times(self) -> np.ndarray | None:
         """Timestamps broadcast to every slot, ``float64[rows, cols]``, or None."""
         if self.timestamps is None:

@@ -311,7 +311,7 @@ def detect_cars(
     empty = np.zeros(scan.shape, dtype=bool)
     if z_ground is None:
         return CarResult(empty, np.zeros(scan.shape, np.int32))
-    xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
+    xyz = scan.slot_xyz64()
     lines = coarse.lines
     z_line = line_values(z_ground, len(lines))
     curb_slot = np.full(len(lines), -1, np.int64)

@@ -163,7 +163,7 @@ class CoarseResult:
 def coarse_classify(scan: Scan, params: CoarseParams | None = None) -> CoarseResult:
     """Run the coarse H / V / T classifier and T' on every scan line of ``scan``."""
     p = params or CoarseParams()
-    xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
+    xyz = scan.slot_xyz64()
     valid = scan.valid.ravel()
     lines = scan_lines(scan)
     codes, tp, sv, phi = _classify_lines(

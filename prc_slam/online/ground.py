@@ -323,7 +323,7 @@ class GroundDetector:
     def process(self, scan: Scan, coarse: CoarseResult) -> np.ndarray:
         """Ground mask (rows, cols) of one scan, given its coarse classification. Afterwards
         :attr:`line_heights` holds the ground height of each of the scan's lines."""
-        xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
+        xyz = scan.slot_xyz64()
         lines = coarse.lines
         args = (xyz, coarse.codes.ravel(), coarse.phi_hat.ravel(), scan.valid.ravel())
         had = self.have_zd

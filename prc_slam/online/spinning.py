@@ -458,7 +458,7 @@ def column_ground(
     """
     from prc_slam.online.ground import mean_shift_modes
 
-    xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
+    xyz = scan.slot_xyz64()
     valid = scan.valid.ravel()
     ok = lines >= 0
     v = valid[np.where(ok, lines, 0)] & ok
@@ -863,7 +863,7 @@ def detect_curbs_spinning(
     from prc_slam.voxels import VoxelGrid
 
     rows, cols = scan.shape
-    xyz = scan.slot_xyz().reshape(-1, 3).astype(np.float64)
+    xyz = scan.slot_xyz64()
     valid = scan.valid.ravel()
     if zg is None:
         zg = local_ground(lines, ground.ravel(), xyz[:, 2], line_height)
