@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -312,11 +312,13 @@ def _hash_neighbours(table, coords):
     return start, nbr[:m].copy()
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _lists_sum(start, nbr, values):
+    """Sums over the neighbour lists; voxels are independent (parallel loop, each sum added
+    in list order: the result does not depend on the thread count)."""
     nv, m = values.shape
     out = np.zeros((nv, m))
-    for v in range(nv):
+    for v in prange(nv):
         for j in range(start[v], start[v + 1]):
             u = nbr[j]
             for c in range(m):

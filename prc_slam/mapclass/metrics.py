@@ -18,7 +18,7 @@ itself when its curvature is below ``max_curvature``.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from prc_slam.voxels import VoxelGrid, find
 
@@ -58,16 +58,11 @@ def _jacobi_rotation(app, aqq, apq, arp, arq, vp0, vp1, vp2, vq0, vq1, vq2):
     )  # fmt: skip
 
 
-@njit(cache=True, nogil=True)
-def _eigh3(a, v, w):
-    """Eigen decomposition of the symmetric 3x3 ``a`` by cyclic Jacobi sweeps until the
-    off-diagonal elements are below 1e-15 of the matrix norm: ascending eigenvalues in ``w``,
-    unit eigenvectors in the columns of ``v`` (``a`` is left as it was). A 3x3 LAPACK call
-    through ``np.linalg.eigh`` costs 2-3 us (allocation, workspace query) against ~0.15 us here;
-    eigenvalues and vectors agree with it to ~1e-15 (eigenvector sign free). Returns False
-    when the sweeps do not converge (then ``np.linalg.eigh`` decides)."""
-    a00, a11, a22, a01, a02, a12 = a[0, 0], a[1, 1], a[2, 2], a[0, 1], a[0, 2], a[1, 2]
-    # eigenvector columns: c0 = (x0, y0, z0), c1, c2
+@njit(cache=True, nogil=True, inline="always")
+def _jacobi3(a00, a11, a22, a01, a02, a12):
+    """Cyclic Jacobi sweeps on a symmetric 3x3 matrix (scalars) until the off-diagonal
+    elements are below 1e-15 of the matrix norm. Returns the diagonal (eigenvalues, unsorted),
+    the eigenvector columns (x0, y0, z0, x1, ..., z2) and whether the sweeps converged."""
     x0, y0, z0, x1, y1, z1, x2, y2, z2 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
     norm = a00 * a00 + a11 * a11 + a22 * a22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)
     converged = False
@@ -75,7 +70,7 @@ def _eigh3(a, v, w):
         if a01 * a01 + a02 * a02 + a12 * a12 <= 1e-30 * norm:
             converged = True
             break
-        # (p, q) = (0, 1), r = 2: a_rp = a02, a_rq = a12; vectors: rows of columns 0 and 1
+        # (p, q) = (0, 1), r = 2: a_rp = a02, a_rq = a12; vectors: columns 0 and 1
         a00, a11, a01, a02, a12, x0, y0, z0, x1, y1, z1 = _jacobi_rotation(
             a00, a11, a01, a02, a12, x0, y0, z0, x1, y1, z1
         )
@@ -87,52 +82,77 @@ def _eigh3(a, v, w):
         a11, a22, a12, a01, a02, x1, y1, z1, x2, y2, z2 = _jacobi_rotation(
             a11, a22, a12, a01, a02, x1, y1, z1, x2, y2, z2
         )
-    d = (a00, a11, a22)
-    i0, i1, i2 = 0, 1, 2  # ascending order of the diagonal
+    return a00, a11, a22, x0, y0, z0, x1, y1, z1, x2, y2, z2, converged
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _ascending3(d0, d1, d2):
+    """Indices of three values in ascending order (ties keep their order)."""
+    i0, i1, i2 = 0, 1, 2
+    d = (d0, d1, d2)
     if d[i0] > d[i1]:
         i0, i1 = i1, i0
     if d[i1] > d[i2]:
         i1, i2 = i2, i1
     if d[i0] > d[i1]:
         i0, i1 = i1, i0
-    cols = ((x0, y0, z0), (x1, y1, z1), (x2, y2, z2))
-    w[0], w[1], w[2] = d[i0], d[i1], d[i2]
-    for j, i in enumerate((i0, i1, i2)):
-        v[0, j], v[1, j], v[2, j] = cols[i]
-    return converged
+    return i0, i1, i2
 
 
 @njit(cache=True, nogil=True)
+def _eigh3(a, v, w):
+    """Eigen decomposition of the symmetric 3x3 ``a`` by cyclic Jacobi sweeps
+    (:func:`_jacobi3`): ascending eigenvalues in ``w``, unit eigenvectors in the columns of
+    ``v`` (``a`` is left as it was). A 3x3 LAPACK call through ``np.linalg.eigh`` costs 2-3 us
+    (allocation, workspace query) against ~0.3 us here; eigenvalues and vectors agree with it
+    to ~1e-15 (eigenvector sign free). Returns False when the sweeps do not converge (then
+    ``np.linalg.eigh`` decides)."""
+    r = _jacobi3(a[0, 0], a[1, 1], a[2, 2], a[0, 1], a[0, 2], a[1, 2])
+    i0, i1, i2 = _ascending3(r[0], r[1], r[2])
+    d = (r[0], r[1], r[2])
+    cols = ((r[3], r[4], r[5]), (r[6], r[7], r[8]), (r[9], r[10], r[11]))
+    w[0], w[1], w[2] = d[i0], d[i1], d[i2]
+    for j, i in enumerate((i0, i1, i2)):
+        v[0, j], v[1, j], v[2, j] = cols[i]
+    return r[12]
+
+
+@njit(cache=True, nogil=True, parallel=True)
 def _normals_from_sums(sums):
     """Normal (smallest eigenvector) and curvature λ0/(λ0+λ1+λ2) from (count, Σx, Σxxᵀ) rows;
-    NaN normal and curvature 1 where fewer than 3 points or a degenerate (line-like) spread."""
+    NaN normal and curvature 1 where fewer than 3 points or a degenerate (line-like) spread.
+    Rows are independent (parallel loop; the result does not depend on the thread count)."""
     n = sums.shape[0]
     normals = np.full((n, 3), np.nan)
     curvature = np.ones(n)
-    cov = np.empty((3, 3))
-    a = np.empty((3, 3))
-    v = np.empty((3, 3))
-    w = np.empty(3)
-    for i in range(n):
+    for i in prange(n):
         c = sums[i, 0]
         if c < 3:
             continue
         mx, my, mz = sums[i, 1] / c, sums[i, 2] / c, sums[i, 3] / c
-        cov[0, 0] = sums[i, 4] / c - mx * mx
-        cov[0, 1] = sums[i, 5] / c - mx * my
-        cov[0, 2] = sums[i, 6] / c - mx * mz
-        cov[1, 1] = sums[i, 7] / c - my * my
-        cov[1, 2] = sums[i, 8] / c - my * mz
-        cov[2, 2] = sums[i, 9] / c - mz * mz
-        cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
-        a[:] = cov
-        if not _eigh3(a, v, w):
-            w[:], v[:] = np.linalg.eigh(cov)
-        total = w[0] + w[1] + w[2]
-        if total <= 0 or w[1] <= 1e-6 * total:  # all points coincide or lie on a line
+        c00 = sums[i, 4] / c - mx * mx
+        c01 = sums[i, 5] / c - mx * my
+        c02 = sums[i, 6] / c - mx * mz
+        c11 = sums[i, 7] / c - my * my
+        c12 = sums[i, 8] / c - my * mz
+        c22 = sums[i, 9] / c - mz * mz
+        r = _jacobi3(c00, c11, c22, c01, c02, c12)
+        if r[12]:
+            i0, i1, i2 = _ascending3(r[0], r[1], r[2])
+            d = (r[0], r[1], r[2])
+            w0, w1, w2 = d[i0], d[i1], d[i2]
+            cols = ((r[3], r[4], r[5]), (r[6], r[7], r[8]), (r[9], r[10], r[11]))
+            n0, n1, n2 = cols[i0]
+        else:  # not converged: LAPACK decides
+            cov = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
+            ew, ev = np.linalg.eigh(cov)
+            w0, w1, w2 = ew[0], ew[1], ew[2]
+            n0, n1, n2 = ev[0, 0], ev[1, 0], ev[2, 0]
+        total = w0 + w1 + w2
+        if total <= 0 or w1 <= 1e-6 * total:  # all points coincide or lie on a line
             continue
-        normals[i, 0], normals[i, 1], normals[i, 2] = v[0, 0], v[1, 0], v[2, 0]
-        curvature[i] = max(w[0], 0.0) / total
+        normals[i, 0], normals[i, 1], normals[i, 2] = n0, n1, n2
+        curvature[i] = max(w0, 0.0) / total
     return normals, curvature
 
 

@@ -8,7 +8,7 @@ points only.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from prc_slam.mapclass.metrics import segment_density
@@ -151,12 +151,12 @@ def _gather_marked(voxel, mask, values):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _any_in_cube(table, coords, points, inv_size):
     """Whether the 3x3x3 cubes of a grid (side ``1 / inv_size``) around each point's cube hold
     any occupied one."""
     out = np.zeros(points.shape[0], np.bool_)
-    for i in range(points.shape[0]):
+    for i in prange(points.shape[0]):
         x = np.int64(np.floor(points[i, 0] * inv_size))
         y = np.int64(np.floor(points[i, 1] * inv_size))
         z = np.int64(np.floor(points[i, 2] * inv_size))
@@ -262,13 +262,13 @@ def ground_height_grid(ground: np.ndarray, cell: float, radius: int) -> tuple[Vo
     return grid, agg[:, 0] / agg[:, 1]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _planar_sum(table, coords, values, radius):
     """:meth:`VoxelGrid.neighbourhood_sum` of a flat grid (every voxel at z = 0): the
     ``(2r+1)^2`` cells of its layer, added in the same order (the other layers are empty)."""
     nv, m = values.shape
     out = np.zeros((nv, m))
-    for v in range(nv):
+    for v in prange(nv):
         for dx in range(-radius, radius + 1):
             for dy in range(-radius, radius + 1):
                 u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, 0)
@@ -364,12 +364,12 @@ def _window_cells(table, coords, query, reach, cell, bound):
     return start, out[:m].copy(), low[:m].copy()
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _nearest_in_lists(points, qcell, start, cand, low, coords, cell, bound):
     n = points.shape[0]
     out = np.full(n, -1, np.int64)
     b2 = bound * bound
-    for i in range(n):
+    for i in prange(n):
         q = qcell[i]
         best = b2
         for k in range(start[q], start[q + 1]):
@@ -586,10 +586,10 @@ def under_crown(
     return best[grid.voxel] > points[:, 2] + above
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _planar_max(table, coords, values, radius):
     out = np.full(values.shape[0], -np.inf)
-    for v in range(coords.shape[0]):
+    for v in prange(coords.shape[0]):
         for dx in range(-radius, radius + 1):
             for dy in range(-radius, radius + 1):
                 u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, 0)
