@@ -276,7 +276,13 @@ def _ring_runs_cut(az, ok, s, cut, jitter, run):
             run[i] = -1
             continue
         u = s * (az[i] - cut)
-        u = u - 2.0 * np.pi * math.floor(u / (2.0 * np.pi))
+        # into [0, 2 pi): az and cut lie in (-pi, pi], so u is within one turn of it
+        if u < 0.0:
+            u += 2.0 * np.pi
+        elif u >= 2.0 * np.pi:
+            u -= 2.0 * np.pi
+        if u < 0.0 or u >= 2.0 * np.pi:
+            u = u - 2.0 * np.pi * math.floor(u / (2.0 * np.pi))
         if cur < 0:
             cur = 0
             prog = 0.0
