@@ -37,7 +37,7 @@ def read_velodyne_bin(path: str | Path, allow_nonfinite: bool = False) -> np.nda
     if raw.size % 4:
         raise DataError(f"{path}: truncated: {path.stat().st_size} bytes is not a whole number of 16-byte points")
     pts = raw.reshape(-1, 4)
-    if allow_nonfinite:
+    if allow_nonfinite or np.isfinite(raw).all():  # the flat check first: the per-point one is 10x slower
         return pts
     bad = ~np.isfinite(pts).all(axis=1)
     if bad.any():
