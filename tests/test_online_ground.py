@@ -29,6 +29,14 @@ def test_single_mode_agrees_with_full_mean_shift(values, bandwidth):
     assert single_mode(x, bandwidth) == (len(mean_shift_modes(x, bandwidth)[0]) == 1)
 
 
+def test_incremental_growth_on_a_sample_exactly_one_bandwidth_away():
+    """Found by hypothesis: 1.0 and -8e-32 lie exactly one bandwidth apart in floating point
+    (|z - m| <= h includes it) although m - h = 0.0 > -8e-32; both searches must agree."""
+    x = np.array([1.0, -8.138075935518415e-32, -0.5])
+    assert single_mode(x, 1.0)
+    assert grow_single_mode(x, 0, 1, 3, 1.0) == 3
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.floats(-30, 30), min_size=3, max_size=60), st.integers(1, 10), st.floats(0.5, 8))
 def test_incremental_growth_agrees_with_single_mode_on_every_prefix(values, first, bandwidth):

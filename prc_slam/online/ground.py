@@ -144,6 +144,16 @@ def _track_mode_ranked(srt, cnt, tot, start, bandwidth):
     for _ in range(100):
         i0 = np.searchsorted(srt, m - bandwidth, side="left")
         i1 = np.searchsorted(srt, m + bandwidth, side="right")
+        # the window of :func:`_track_mode` exactly (|z - m| <= bandwidth, which m -+ bandwidth
+        # rounded can miss by one sample at the edge)
+        while i0 > 0 and abs(srt[i0 - 1] - m) <= bandwidth:
+            i0 -= 1
+        while i0 < srt.shape[0] and abs(srt[i0] - m) > bandwidth:
+            i0 += 1
+        while i1 < srt.shape[0] and abs(srt[i1] - m) <= bandwidth:
+            i1 += 1
+        while i1 > i0 and abs(srt[i1 - 1] - m) > bandwidth:
+            i1 -= 1
         c = _fenwick_sum(cnt, i1) - _fenwick_sum(cnt, i0)
         if c <= 0.0:
             return m
