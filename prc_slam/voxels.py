@@ -130,6 +130,23 @@ def _root(parent, a):
 
 
 @njit(cache=True, nogil=True)
+def _component_ids(parent):
+    """Component id of every voxel from its union-find ``parent``: ``0..`` in the order of each
+    component's first voxel."""
+    nv = parent.shape[0]
+    comp = np.empty(nv, np.int64)
+    ids = np.full(nv, -1, np.int64)
+    nc = 0
+    for v in range(nv):
+        r = _root(parent, v)
+        if ids[r] < 0:
+            ids[r] = nc
+            nc += 1
+        comp[v] = ids[r]
+    return comp
+
+
+@njit(cache=True, nogil=True)
 def _components(table, coords):
     """26-connected components of the occupied voxels (union-find), ids 0..C-1."""
     nv = coords.shape[0]
@@ -143,16 +160,7 @@ def _components(table, coords):
                         ra, rb = _root(parent, v), _root(parent, u)
                         if ra != rb:
                             parent[max(ra, rb)] = min(ra, rb)
-    comp = np.empty(nv, np.int64)
-    ids = np.full(nv, -1, np.int64)
-    nc = 0
-    for v in range(nv):
-        r = _root(parent, v)
-        if ids[r] < 0:
-            ids[r] = nc
-            nc += 1
-        comp[v] = ids[r]
-    return comp
+    return _component_ids(parent)
 
 
 @njit(cache=True, nogil=True)
@@ -338,16 +346,7 @@ def _lists_components(start, nbr):
                 ra, rb = _root(parent, v), _root(parent, u)
                 if ra != rb:
                     parent[max(ra, rb)] = min(ra, rb)
-    comp = np.empty(nv, np.int64)
-    ids = np.full(nv, -1, np.int64)
-    nc = 0
-    for v in range(nv):
-        r = _root(parent, v)
-        if ids[r] < 0:
-            ids[r] = nc
-            nc += 1
-        comp[v] = ids[r]
-    return comp
+    return _component_ids(parent)
 
 
 #: grids with more voxels than this use the merge walk for their 3x3x3 neighbourhoods

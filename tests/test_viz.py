@@ -198,12 +198,38 @@ def test_serve_web_serves_the_viewer_and_the_stream(tmp_path):
         proc.wait(timeout=20)
 
 
-def test_connect_streams_to_a_running_viewer(tmp_path):
+def _free_port() -> int:
+    """A local port nothing listens on (bound, then closed again)."""
     import socket
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+        return s.getsockname()[1]
+
+
+def _compare_connected(tmp_path, port: int, timeout: float) -> subprocess.CompletedProcess:
+    """``prc-slam compare`` on a small simulation, streaming to the viewer at ``port``."""
+    return subprocess.run(
+        [
+            _prc_slam_cli(),
+            "compare",
+            str(_sim(tmp_path)),
+            "--out",
+            str(tmp_path / "out"),
+            "--connect",
+            f"rerun+http://127.0.0.1:{port}/proxy",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_connect_streams_to_a_running_viewer(tmp_path):
+    import socket
+    import time
+
+    port = _free_port()
     receiver = subprocess.Popen(
         [_rerun_cli(), "--headless", "--test-receive", "--port", str(port)],
         stdout=subprocess.PIPE,
@@ -211,28 +237,13 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
         text=True,
     )
     try:
-        import time
-
         deadline = time.monotonic() + 60  # the viewer listening (slow to start on a busy machine)
         while time.monotonic() < deadline:
             with socket.socket() as s:
                 if s.connect_ex(("127.0.0.1", port)) == 0:
                     break
             time.sleep(0.2)
-        run = subprocess.run(
-            [
-                _prc_slam_cli(),
-                "compare",
-                str(_sim(tmp_path)),
-                "--out",
-                str(tmp_path / "out"),
-                "--connect",
-                f"rerun+http://127.0.0.1:{port}/proxy",
-            ],
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        run = _compare_connected(tmp_path, port, timeout=120)
         assert run.returncode == 0, run.stdout + run.stderr
         out, _ = receiver.communicate(timeout=60)
         assert receiver.returncode == 0, out
@@ -245,25 +256,7 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
 def test_viewer_that_never_answers_costs_only_the_recording(tmp_path):
     """--connect to a port where no viewer listens: the run completes and writes its outputs,
     with one warning that the recording was not delivered (no traceback)."""
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]  # closed again: nothing listens there
-    run = subprocess.run(
-        [
-            _prc_slam_cli(),
-            "compare",
-            str(_sim(tmp_path)),
-            "--out",
-            str(tmp_path / "out"),
-            "--connect",
-            f"rerun+http://127.0.0.1:{port}/proxy",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=180,
-    )
+    run = _compare_connected(tmp_path, _free_port(), timeout=180)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "the recording could not be delivered" in run.stdout + run.stderr
     assert "Traceback" not in run.stdout + run.stderr
