@@ -37,14 +37,30 @@ def sims(tmp_path_factory) -> list[Path]:
 
 @pytest.fixture(scope="module")
 def client():
-    import logging
+    from prc_slam.jobs.distributed import open_client
 
-    from distributed import Client, LocalCluster
-
-    with LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=logging.ERROR
-    ) as cluster, Client(cluster) as c:  # fmt: skip
+    # the cluster `prc-slam batch` starts: workers prepared, cores shared out among them
+    with open_client(workers=2, dashboard=False) as c:
         yield c
+
+
+def test_local_workers_share_the_cores(client):
+    """Each of the 2 local workers gets its share of the cores for numba's parallel kernels and
+    for KISS-ICP's threads (by default each would take every core)."""
+    from prc_slam.jobs.distributed import default_workers
+
+    share = max(1, default_workers() // 2)
+    got = client.run(
+        lambda: (
+            __import__("os").environ.get("NUMBA_NUM_THREADS"),
+            __import__("numba").config.NUMBA_NUM_THREADS,
+            __import__("prc_slam.odometry.kiss", fromlist=["x"])
+            .kiss_config(__import__("prc_slam.odometry.kiss", fromlist=["x"]).OdometryConfig())
+            .registration.max_num_threads,
+        )
+    )
+    assert len(got) == 2
+    assert all(v == (str(share), share, share) for v in got.values()), got
 
 
 def _plan(tmp: Path, data: dict) -> Path:

@@ -199,3 +199,15 @@ def test_cli_compare_and_odometry(short_drive, tmp_path):
     assert res.exit_code == 0, res.output
     assert len(np.loadtxt(tmp_path / "p.txt")) == 5
     assert list(json.loads((tmp_path / "o.json").read_text())["variants"]) == ["raw"]
+
+
+def test_kiss_threads_from_the_environment(monkeypatch):
+    """KISS-ICP's thread count: the config's when set, else PRC_SLAM_THREADS (a positive
+    integer; anything else means KISS-ICP's own choice, 0)."""
+    from prc_slam.odometry.kiss import OdometryConfig, kiss_config
+
+    for value, expected in (("3", 3), ("0", 0), ("-2", 0), ("two", 0), ("", 0)):
+        monkeypatch.setenv("PRC_SLAM_THREADS", value)
+        assert kiss_config(OdometryConfig()).registration.max_num_threads == expected
+    monkeypatch.setenv("PRC_SLAM_THREADS", "3")
+    assert kiss_config(OdometryConfig(max_num_threads=2)).registration.max_num_threads == 2

@@ -56,7 +56,12 @@ class OdometryConfig(BaseModel):
     min_motion_th: float = Field(0.1, ge=0)
     max_num_iterations: int = Field(500, ge=1)
     convergence_criterion: float = Field(1e-4, gt=0)
-    max_num_threads: int = Field(0, ge=0, description="0: automatic")
+    max_num_threads: int = Field(
+        0,
+        ge=0,
+        description="KISS-ICP's threads; 0: automatic (every core, or PRC_SLAM_THREADS when set, as `batch` does "
+        "for its local workers so that they share the cores)",
+    )
     deskew_convention: Literal["reference", "kiss"] = Field(
         "reference",
         description="reference: poses at each frame's reference time, deskewed by the adapter with the real "
@@ -72,6 +77,12 @@ def _without_kiss_env():
         yield
     finally:
         os.environ.update(saved)
+
+
+def _threads_from_env() -> int:
+    """``PRC_SLAM_THREADS`` (a positive integer), else 0 (KISS-ICP's own choice: every core)."""
+    value = os.environ.get("PRC_SLAM_THREADS", "")
+    return int(value) if value.isdigit() and int(value) > 0 else 0
 
 
 def kiss_config(config: OdometryConfig):
@@ -90,7 +101,7 @@ def kiss_config(config: OdometryConfig):
             registration=RegistrationConfig(
                 max_num_iterations=config.max_num_iterations,
                 convergence_criterion=config.convergence_criterion,
-                max_num_threads=config.max_num_threads,
+                max_num_threads=config.max_num_threads or _threads_from_env(),
             ),
             adaptive_threshold=AdaptiveThresholdConfig(
                 initial_threshold=config.initial_threshold, min_motion_th=config.min_motion_th
