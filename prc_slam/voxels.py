@@ -164,6 +164,24 @@ def _components(table, coords):
 
 
 @njit(cache=True, nogil=True)
+def group_members(keys, n_groups):
+    """Indices ``0..N-1`` grouped by ``keys`` (ints in ``[0, n_groups)``) by counting sort, O(N +
+    groups), input order kept within a group: ``members[start[g]:start[g + 1]]`` are group ``g``'s."""
+    n = keys.shape[0]
+    start = np.zeros(n_groups + 1, np.int64)
+    for i in range(n):
+        start[keys[i] + 1] += 1
+    for g in range(n_groups):
+        start[g + 1] += start[g]
+    fill = start[:-1].copy()
+    members = np.empty(n, np.int64)
+    for i in range(n):
+        members[fill[keys[i]]] = i
+        fill[keys[i]] += 1
+    return start, members
+
+
+@njit(cache=True, nogil=True)
 def radix_argsort(keys):
     """Argsort of non-negative int64 keys (LSD radix sort, 16-bit digits; stable). O(N) per
     16 bits of the largest key."""

@@ -129,26 +129,6 @@ def warm_worker() -> None:
 # ---------------------------------------------------------------------------------------------
 
 
-def tile_points(files: dict[tuple[int, int], Path], key: tuple[int, int], tile: float, margin: float):
-    """The tile's own rows and the points classified with it: its own points first, then the
-    points of the neighbouring tiles within ``margin`` (the serial loop's gathering, in its order)."""
-    from prc_slam.mapclass.tiles import _ROW
-
-    own = np.fromfile(files[key], dtype=_ROW)
-    lo = np.array(key, dtype=np.float64) * tile - margin
-    hi = lo + tile + 2 * margin
-    reach = int(np.ceil(margin / tile))
-    parts = [own["xyz"]]
-    for dx in range(-reach, reach + 1):
-        for dy in range(-reach, reach + 1):
-            other = files.get((key[0] + dx, key[1] + dy))
-            if (dx or dy) and other is not None:
-                xyz = np.fromfile(other, dtype=_ROW)["xyz"]
-                inside = np.all((xyz[:, :2] >= lo) & (xyz[:, :2] < hi), axis=1)
-                parts.append(xyz[inside])
-    return own, np.concatenate(parts)
-
-
 def classify_tile(points: np.ndarray, n_own: int, config) -> tuple[np.ndarray, dict[str, float], Any]:
     """On a worker: classify one tile with its margin; the labels of its ``n_own`` own points
     (they come first), the stage times and the tile's result without per-point arrays."""
@@ -204,7 +184,7 @@ def classify_tiled_distributed(
             nonlocal next_key
             key = keys[next_key]
             next_key += 1
-            own, points = tile_points(files, key, tile, margin)
+            own, points = tiles.tile_points(files, key, tile, margin)
             data = client.scatter(points, direct=False)
             fut = client.submit(classify_tile, data, len(own), config, pure=False, retries=2)
             pending[fut] = (key, own["index"])

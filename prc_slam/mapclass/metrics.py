@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from prc_slam.voxels import VoxelGrid, find
+from prc_slam.voxels import VoxelGrid, find, group_members
 
 
 def local_density(points: np.ndarray, voxel: float) -> tuple[np.ndarray, VoxelGrid]:
@@ -428,16 +428,7 @@ def _segments_per_voxel(voxel, segment, n_voxels):
     """The distinct segments of every voxel as CSR lists (``segs[starts[v]:starts[v+1]]``):
     the points grouped by voxel (counting sort), each voxel stamps its segments. O(N)."""
     n = voxel.shape[0]
-    first = np.zeros(n_voxels + 1, np.int64)
-    for i in range(n):
-        first[voxel[i] + 1] += 1
-    for v in range(n_voxels):
-        first[v + 1] += first[v]
-    fill = first[:-1].copy()
-    members = np.empty(n, np.int64)
-    for i in range(n):
-        members[fill[voxel[i]]] = i
-        fill[voxel[i]] += 1
+    first, members = group_members(voxel, n_voxels)
     stamp = np.full(segment.max() + 1 if n else 0, -1, np.int64)
     starts = np.zeros(n_voxels + 1, np.int64)
     segs = np.empty(n, np.int64)

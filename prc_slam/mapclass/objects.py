@@ -12,7 +12,7 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from prc_slam.mapclass.metrics import segment_density
-from prc_slam.voxels import VoxelGrid, find
+from prc_slam.voxels import VoxelGrid, find, group_members
 
 
 @njit(cache=True, nogil=True)
@@ -57,17 +57,7 @@ def compact(segment: np.ndarray) -> tuple[np.ndarray, int]:
 def _distinct_per_segment(segment, voxel, n_segments, n_voxels):
     """Distinct voxels per segment: the points grouped by segment (counting sort, O(N + S)),
     each segment stamps the voxels it visits."""
-    n = segment.shape[0]
-    start = np.zeros(n_segments + 1, np.int64)
-    for i in range(n):
-        start[segment[i] + 1] += 1
-    for s in range(n_segments):
-        start[s + 1] += start[s]
-    fill = start[:-1].copy()
-    members = np.empty(n, np.int64)
-    for i in range(n):
-        members[fill[segment[i]]] = i
-        fill[segment[i]] += 1
+    start, members = group_members(segment, n_segments)
     stamp = np.full(n_voxels, -1, np.int64)
     out = np.zeros(n_segments, np.int64)
     for s in range(n_segments):

@@ -102,23 +102,12 @@ def classify_tiled(
             raise ValueError(f"labels_out holds {len(labels)} entries for {n} points")
         labels[:] = L.NO_RETURN
         seconds: dict[str, float] = {}
-        reach = int(np.ceil(margin / tile))
         results: list[MapResult] = []
-        for done, (key, path) in enumerate(sorted(files.items()), start=1):
-            own = np.fromfile(path, dtype=_ROW)
-            lo = np.array(key, dtype=np.float64) * tile - margin
-            hi = lo + tile + 2 * margin
-            parts = [own["xyz"]]
-            for dx in range(-reach, reach + 1):
-                for dy in range(-reach, reach + 1):
-                    other = files.get((key[0] + dx, key[1] + dy))
-                    if (dx or dy) and other is not None:
-                        xyz = np.fromfile(other, dtype=_ROW)["xyz"]
-                        inside = np.all((xyz[:, :2] >= lo) & (xyz[:, :2] < hi), axis=1)
-                        parts.append(xyz[inside])
+        for done, key in enumerate(sorted(files), start=1):
+            own, points = tile_points(files, key, tile, margin)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", DensityWarning)  # summed up below
-                result = classify_map(np.concatenate(parts), config)
+                result = classify_map(points, config)
             labels[own["index"]] = result.labels[: len(own)]
             results.append(_light(result, len(own)))
             for k, v in result.seconds.items():
@@ -133,6 +122,26 @@ def classify_tiled(
             stacklevel=2,
         )
     return (labels, seconds, density) if details else (labels, seconds)
+
+
+def tile_points(
+    files: dict[tuple[int, int], Path], key: tuple[int, int], tile: float, margin: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The tile's own rows (``index``, ``xyz``) and the points classified with it: its own
+    points first, then those of the neighbouring tiles within ``margin``."""
+    own = np.fromfile(files[key], dtype=_ROW)
+    lo = np.array(key, dtype=np.float64) * tile - margin
+    hi = lo + tile + 2 * margin
+    reach = int(np.ceil(margin / tile))
+    parts = [own["xyz"]]
+    for dx in range(-reach, reach + 1):
+        for dy in range(-reach, reach + 1):
+            other = files.get((key[0] + dx, key[1] + dy))
+            if (dx or dy) and other is not None:
+                xyz = np.fromfile(other, dtype=_ROW)["xyz"]
+                inside = np.all((xyz[:, :2] >= lo) & (xyz[:, :2] < hi), axis=1)
+                parts.append(xyz[inside])
+    return own, np.concatenate(parts)
 
 
 def _light(result: MapResult, n_own: int) -> MapResult:
