@@ -52,6 +52,18 @@ def health_section(result: CompareResult, metrics: dict[str, Any]) -> list[str]:
             "A failed variant's trajectory, metrics and times cover the frames before its failure; "
             "its error figures are therefore not comparable with the others'.",
         ]
+    disagreements = metrics.get("disagreements", {})
+    if disagreements:
+        lines += [
+            "",
+            "Variants whose motions disagree (first frame, frames, largest difference over the window, suspect):",
+            "",
+        ]
+        for pair, d in disagreements.items():
+            lines.append(
+                f"- {pair}: from frame {d['first_frame']}, {d['frames']} frames, up to {_fmt(d['max_difference_m'])} m / "
+                f"{_fmt(d['max_difference_deg'])} deg; suspect: {', '.join(d['suspects']) or '-'}"
+            )
     for name, why in metrics.get("skipped_variants", {}).items():
         lines.append(f"- `{name}` skipped: {why}")
     return lines

@@ -292,4 +292,7 @@ ORGANIZE_OPT = typer.Option(
 COLS_OPT = typer.Option(None, "--cols", min=1, help="unorganised sweeps: columns per sweep (default: estimated)")
 FORMAT_OPT = typer.Option(None, "--format", help="input format (default: detected)")
 MAX_FRAMES_OPT = typer.Option(None, "--max-frames", min=1, help="use only the first N frames")
+STRIDE_OPT = typer.Option(
+    1, "--stride", min=1, help="use every N-th frame (keyframes: 5 turns a 10 Hz sensor into 2 Hz); before --max-frames"
+)
 JSON_OPT = typer.Option(None, "--json", help="write the metrics JSON here")

@@ -23,6 +23,7 @@ from prc_slam.cli.common import (
     RRD_OPT,
     SERVE_OPT,
     SERVE_SECONDS_OPT,
+    STRIDE_OPT,
     TOPIC_OPT,
     WEB_PORT_OPT,
     Mode,
@@ -81,6 +82,7 @@ def compare(
     organize: OrganizeMethod | None = ORGANIZE_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
+    stride: int = STRIDE_OPT,
     rrd: Path | None = RRD_OPT,
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
@@ -102,6 +104,8 @@ def compare(
     from prc_slam.jobs.progress import progress
 
     names = variant_list(variants)
+    if mapclass and stride > 1:
+        raise ValueError("--stride: not with --mapclass (the map is accumulated from every frame's index)")
     cfg = run_config(preset, config, mode)
     cfg.odometry.deskew = cfg.odometry.deskew and deskew
     viewer = Viewer(
@@ -110,7 +114,8 @@ def compare(
     )  # fmt: skip
     with progress() as reporter:
         run, prc_labels = run_odometry(
-            input, cfg, names, fmt=fmt, max_frames=max_frames, online=online, score_prc=True, viewer=viewer,
+            input, cfg, names, fmt=fmt, max_frames=max_frames, stride=stride, online=online, score_prc=True,
+            viewer=viewer,
             reporter=reporter, keep_labels_every=mapclass_every if mapclass else None,
             **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip
@@ -159,6 +164,7 @@ def odometry(
     organize: OrganizeMethod | None = ORGANIZE_OPT,
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
+    stride: int = STRIDE_OPT,
     rrd: Path | None = RRD_OPT,
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
@@ -176,7 +182,8 @@ def odometry(
     cfg.odometry.deskew = cfg.odometry.deskew and deskew
     with progress() as reporter:
         run, _ = run_odometry(
-            input, cfg, [name], fmt=fmt, max_frames=max_frames, viewer=Viewer(rrd, connect, serve_web, log_every),
+            input, cfg, [name], fmt=fmt, max_frames=max_frames, stride=stride,
+            viewer=Viewer(rrd, connect, serve_web, log_every),
             reporter=reporter, **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip
     written = list(run.written)

@@ -20,15 +20,39 @@ from prc_slam.scan import Scan, ScanError
 log = logging.getLogger("prc_slam")
 
 
-def open_input(path: Path, fmt: str | None = None, max_frames: int | None = None, **options: Any):
-    """Open ``path`` (format detected unless ``fmt``); returns the dataset and the frame count used."""
+def open_input(path: Path, fmt: str | None = None, max_frames: int | None = None, stride: int = 1, **options: Any):
+    """Open ``path`` (format detected unless ``fmt``); returns the dataset (every ``stride``-th
+    frame of it) and the frame count used."""
     if max_frames is not None and max_frames < 1:
         raise ValueError(f"--max-frames: must be at least 1, got {max_frames}")
+    if stride < 1:
+        raise ValueError(f"--stride: must be at least 1, got {stride}")
     dataset = open_dataset(path, fmt, **{k: v for k, v in options.items() if v is not None})
+    if stride > 1:
+        dataset = Strided(dataset, stride)
     n = len(dataset) if max_frames is None else min(max_frames, len(dataset))
     if n == 0:
         raise DataError(f"{path}: no frames")
     return dataset, n
+
+
+class Strided:
+    """Every ``stride``-th frame of ``dataset`` (keyframes: 5 turns a 10 Hz sensor into 2 Hz);
+    frame ``i`` is the dataset's frame ``i * stride``, with its own name, times and pose."""
+
+    def __init__(self, dataset, stride: int) -> None:
+        self.dataset, self.stride = dataset, int(stride)
+
+    def __len__(self) -> int:
+        return -(-len(self.dataset) // self.stride)
+
+    def __getitem__(self, i: int) -> Scan:
+        if not 0 <= i < len(self):
+            raise IndexError(i)
+        return self.dataset[i * self.stride]
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.dataset, name)
 
 
 class frames_of(Iterator[Scan]):

@@ -51,6 +51,7 @@ def run_odometry(
     *,
     fmt: str | None = None,
     max_frames: int | None = None,
+    stride: int = 1,
     online: bool = False,
     score_prc: bool = False,
     viewer: Viewer | None = None,
@@ -64,7 +65,7 @@ def run_odometry(
 
     variants = list(variants)
     stage = OdometryVariants(config, variants)
-    dataset, n = open_input(input, fmt, max_frames, **open_options)
+    dataset, n = open_input(input, fmt, max_frames, stride, **open_options)
     viewer = viewer or Viewer()
     sinks: list = []
     online_scorer = prc_scorer = None

@@ -22,6 +22,7 @@ from prc_slam import labels as L
 from prc_slam.config import Config
 from prc_slam.filtering import filter_points
 from prc_slam.odometry import classaware
+from prc_slam.odometry.agreement import AgreementMonitor
 from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry
 from prc_slam.odometry.kiss import KissOdometry
 from prc_slam.pipeline import ClassifiedFrame, classify_frames
@@ -101,6 +102,7 @@ class CompareResult:
     times: np.ndarray
     names: list[str]
     skipped: dict[str, str] = field(default_factory=dict)
+    disagreements: dict[str, dict] = field(default_factory=dict)
 
     def estimate_in_world(self, name: str) -> np.ndarray:
         """A variant's poses in the ground truth's world frame (started at its first pose); a
@@ -164,6 +166,8 @@ class CompareResult:
         result: dict[str, Any] = {"variants": out}
         if self.skipped:
             result["skipped_variants"] = dict(self.skipped)
+        if self.disagreements:
+            result["disagreements"] = _json_safe(self.disagreements)
         return result
 
 
@@ -294,6 +298,8 @@ class OdometryVariants:
             except Exception:  # compilation only; a broken odometry fails its variant on the first frame
                 pass
         self.needs_prc = any(v in ("prc", "prc+classaware") for v in variants)
+        first = next(iter(self.runs.values())).odometry
+        self.agreement = AgreementMonitor(config.odometry.guard, first.voxel)
         self.gt: list[np.ndarray | None] = []
         self.times: list[float] = []
         self.names: list[str] = []
@@ -354,15 +360,34 @@ class OdometryVariants:
             run.points_in.append(len(pts))
             run.points_to_icp.append(int(keep.sum()))
             kept[name] = keep
+        self._cross_check(index, pts, poses)
         self.gt.append(scan.gt_pose)
         self.times.append(frame_time if frame_time is not None else float(index))
         self.names.append(scan.name)
         return FrameRecord(frame, index, kept, poses, self.runs)
 
+    def _cross_check(self, index: int, pts: np.ndarray, poses: dict[str, np.ndarray]) -> None:
+        """Hold the variants that registered this frame against each other
+        (:class:`~prc_slam.odometry.agreement.AgreementMonitor`); a suspect's frame is flagged in
+        its health. Monitoring, timed with the health, not in any variant's stage times."""
+        t0 = time.perf_counter()
+        registered = {name: self.runs[name].odometry for name in poses}
+        flags = self.agreement.update(index, pts, {name: odo.poses for name, odo in registered.items()})
+        for name, why in flags.items():
+            health = registered[name].health[-1]
+            health.suspicious = True
+            health.why = "; ".join(filter(None, [health.why, why]))
+        ms = (time.perf_counter() - t0) * 1e3 / max(len(registered), 1)
+        for odo in registered.values():
+            odo.health_ms[-1] += ms
+
     def result(self) -> CompareResult:
         gt = self.gt
         gt_poses = np.array(gt) if gt and all(g is not None for g in gt) else None
-        return CompareResult(self.runs, gt_poses, np.asarray(self.times, dtype=float), self.names, self.skipped)
+        return CompareResult(
+            self.runs, gt_poses, np.asarray(self.times, dtype=float), self.names, self.skipped,
+            self.agreement.as_dict(),
+        )  # fmt: skip
 
 
 def run_compare(

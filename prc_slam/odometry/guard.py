@@ -50,6 +50,17 @@ class GuardConfig(BaseModel):
     )
     window: int = Field(20, ge=3, description="frames of the running median")
     warm_up: int = Field(5, ge=1, description="frames before the divergence detector starts")
+    agreement_window: int = Field(
+        10, ge=1, description="compare: frames over which the variants' relative motions are held against each other"
+    )
+    agreement_m: float = Field(0.5, ge=0, description="compare: variants' motions over the window may differ by this")
+    agreement_share: float = Field(
+        0.05, ge=0, description="... plus this share of the path (and of the angle turned) over the window"
+    )
+    agreement_deg: float = Field(2.0, gt=0, description="compare: ... and by this rotation (plus the share)")
+    agreement_margin: float = Field(
+        1.2, ge=1, description="compare: the variant whose last motion fits successive scans this much worse is suspect"
+    )
 
 
 # ---- consistency of inputs and poses ---------------------------------------------------------
