@@ -83,6 +83,19 @@ def scan_lines(scan: Scan, start_radius: float = PROFILER_START_RADIUS) -> np.nd
     raise TypeError(f"no scan-line definition for {type(scan.sensor).__name__}")
 
 
+def elevation_rows(altitude: np.ndarray) -> slice | np.ndarray:
+    """Row index that puts a spinning sensor's rows in elevation order, lowest beam first: a
+    slice (a view) when the rows already are in elevation order or in its reverse, as most
+    readers give them; else the stable argsort of ``altitude``."""
+    order = np.argsort(altitude, kind="stable")
+    rows = len(order)
+    if (order == np.arange(rows)).all():
+        return slice(None)
+    if (order == np.arange(rows)[::-1]).all():
+        return slice(None, None, -1)
+    return order
+
+
 def line_values(value: float | np.ndarray, n_lines: int) -> np.ndarray:
     """A per-line quantity (e.g. the ground height) as ``float64[n_lines]``, from one value
     for every line or one per line."""

@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from prc_slam.online import kernels as K
-from prc_slam.online.coarse import CoarseResult, line_values
+from prc_slam.online.coarse import CoarseResult, elevation_rows, line_values
 from prc_slam.prc import kernels as prc_kernels
 from prc_slam.scan import Scan, SpinningSensor
 
@@ -54,6 +54,8 @@ def possible_curbs(xyz, codes, ground, valid, lines, z_line, t_high, look_back, 
                     first = k
         found = 0
         searching = False
+        rng = np.empty(m)  # distance from the scanner of each return, computed when first needed
+        n_rng = 0
         for k in range(first, m):
             s = pts[k]
             if ground[s]:
@@ -66,11 +68,16 @@ def possible_curbs(xyz, codes, ground, valid, lines, z_line, t_high, look_back, 
                 continue
             if codes[s] != 69:
                 continue
-            d = np.sqrt(xyz[s, 0] ** 2 + xyz[s, 1] ** 2 + xyz[s, 2] ** 2)
+            lo = max(0, k - look_back)
+            n_rng = max(n_rng, lo)  # returns before the window are never looked at
+            while n_rng <= k:
+                q = pts[n_rng]
+                rng[n_rng] = np.sqrt(xyz[q, 0] ** 2 + xyz[q, 1] ** 2 + xyz[q, 2] ** 2)
+                n_rng += 1
+            d = rng[k]
             far = 0.0
-            for j in range(max(0, k - look_back), k):
-                q = pts[j]
-                far = max(far, np.sqrt(xyz[q, 0] ** 2 + xyz[q, 1] ** 2 + xyz[q, 2] ** 2))
+            for j in range(lo, k):
+                far = max(far, rng[j])
             if far - d <= under_eps:  # TestUnder false: nothing earlier lies behind it
                 out[li, found] = s
                 found += 1
@@ -114,9 +121,10 @@ def detect_curbs(
     if z_ground is None:
         return CurbResult(mask)
     xyz = scan.slot_xyz()
+    xyz64 = scan.slot_xyz64()
     lines = coarse.lines
     pc = possible_curbs(
-        xyz.reshape(-1, 3).astype(np.float64),
+        xyz64,
         coarse.codes.ravel(),
         ground.ravel(),
         scan.valid.ravel(),
@@ -134,41 +142,100 @@ def detect_curbs(
     wrap = isinstance(scan.sensor, SpinningSensor)
     # region growing over range-image neighbours: a spinning sensor's rows in elevation order, so
     # that neighbouring rows are neighbouring beams whatever order the reader gave them in
-    order = np.argsort(scan.sensor.altitude, kind="stable") if wrap else np.arange(scan.shape[0])
+    rows = elevation_rows(scan.sensor.altitude) if wrap else slice(None)
     regions_o, n = prc_kernels.connected_components_within(
-        np.ascontiguousarray(vertical[order]), np.ascontiguousarray(xyz[order], dtype=np.float64), p.max_gap, wrap
+        vertical[rows], xyz64.reshape(xyz.shape)[rows], p.max_gap, wrap
     )
-    regions = np.empty_like(regions_o)
-    regions[order] = regions_o
+    if isinstance(rows, slice):  # a view: the same regions in the reader's row order
+        regions = regions_o[rows]
+    else:
+        regions = np.empty_like(regions_o)
+        regions[rows] = regions_o
     if n == 0 or len(pc) == 0:
         return CurbResult(mask, [], possible)
-    # region statistics, vectorised over the labelled slots
-    lab = regions.ravel()
-    sel = lab > 0
-    ids = lab[sel]
-    z = xyz[..., 2].ravel()[sel]
-    zmin = np.full(n + 1, np.inf)
-    zmax = np.full(n + 1, -np.inf)
-    order = np.argsort(ids, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(ids[order]) != 0])
-    present = ids[order][starts]
-    zmin[present] = np.minimum.reduceat(z[order], starts)
-    zmax[present] = np.maximum.reduceat(z[order], starts)
+    zmin, zmax, size, n_lines = region_stats(regions, xyz[..., 2], n, wrap)
     has_pc = np.zeros(n + 1, dtype=bool)
     has_pc[regions.ravel()[pc]] = True
-    line_of = _line_index(scan).ravel()[sel]
-    pairs = np.unique(ids.astype(np.int64) * (1 << 20) + line_of)
-    n_lines = np.bincount(pairs >> 20, minlength=n + 1)
-    size = np.bincount(ids, minlength=n + 1)
     ok = has_pc & (zmax - zmin <= p.t_curb) & (zmax - zmin >= p.min_height)
     short = np.flatnonzero(ok & (n_lines < p.min_lines))
     if len(short):  # few scan lines: accept only with >= 3 points and a small median curvature
-        curv = np.abs(np.diff(coarse.sv, axis=0, prepend=coarse.sv[:1])).ravel()[sel]
-        for r in short:  # candidate regions only (a handful per frame)
-            ok[r] = size[r] >= 3 and np.median(curv[ids == r]) <= p.max_curvature
+        lab = regions.ravel()
+        is_short = np.zeros(n + 1, bool)
+        is_short[short] = True
+        members = np.flatnonzero(is_short[lab])  # the slots of these regions only
+        sv = coarse.sv.ravel()
+        cols = scan.shape[1]
+        above = np.where(members >= cols, members - cols, members)  # the row before (the first: itself)
+        curv = np.abs(sv[members] - sv[above])  # |diff| along axis 0, as np.diff with sv[:1] prepended
+        median = group_medians(lab[members], curv, short).astype(curv.dtype)  # float32, as np.median gives
+        ok[short] = (size[short] >= 3) & (median <= p.max_curvature)
     ok[0] = False
     mask = ok[regions]
     return CurbResult(mask, _polylines(regions, ok, _line_index(scan), xyz), possible)
+
+
+@njit(cache=True, nogil=True)
+def group_medians(ids, values, groups):
+    """``np.median(values[ids == g])`` for every ``g`` of ``groups`` (NaN for an empty group), in
+    one counting sort. ``values`` float32: an even count takes the mean of the middle two in
+    float32 arithmetic, as ``np.median`` does."""
+    m = 0
+    for g in groups:
+        m = max(m, g)
+    slot = np.full(m + 1, -1, np.int64)
+    for i in range(groups.shape[0]):
+        slot[groups[i]] = i
+    count = np.zeros(groups.shape[0] + 1, np.int64)
+    for k in ids:
+        if k <= m and slot[k] >= 0:
+            count[slot[k] + 1] += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    buf = np.empty(start[-1], values.dtype)
+    for i in range(ids.shape[0]):
+        k = ids[i]
+        if k <= m and slot[k] >= 0:
+            buf[fill[slot[k]]] = values[i]
+            fill[slot[k]] += 1
+    out = np.full(groups.shape[0], np.nan)
+    for i in range(groups.shape[0]):
+        v = np.sort(buf[start[i] : start[i + 1]])
+        n = v.shape[0]
+        if n == 0:
+            continue
+        if n % 2 == 1:
+            out[i] = v[n // 2]
+        else:
+            out[i] = (v[n // 2 - 1] + v[n // 2]) / values.dtype.type(2)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def region_stats(regions, z, n, by_column):
+    """Per region ``0..n`` of ``regions`` (rows, cols): lowest and highest ``z``, number of
+    slots, and number of scan lines it spans (columns if ``by_column``, else rows); index 0 is
+    left at (inf, -inf, 0, 0)."""
+    R, C = regions.shape
+    zmin = np.full(n + 1, np.inf)
+    zmax = np.full(n + 1, -np.inf)
+    size = np.zeros(n + 1, np.int64)
+    n_lines = np.zeros(n + 1, np.int64)
+    last = np.full(n + 1, -1, np.int64)
+    outer, inner = (C, R) if by_column else (R, C)
+    for a in range(outer):
+        for b in range(inner):
+            r, c = (b, a) if by_column else (a, b)
+            k = regions[r, c]
+            if k == 0:
+                continue
+            v = np.float64(z[r, c])
+            zmin[k] = min(zmin[k], v)
+            zmax[k] = max(zmax[k], v)
+            size[k] += 1
+            if last[k] != a:  # first slot of region k on line a
+                last[k] = a
+                n_lines[k] += 1
+    return zmin, zmax, size, n_lines
 
 
 def _polylines(regions: np.ndarray, ok: np.ndarray, line_index: np.ndarray, xyz: np.ndarray) -> list[np.ndarray]:

@@ -22,6 +22,21 @@ def _angle_deg(a, b):
 
 
 @njit(cache=True, nogil=True)
+def _norm(a0, a1, a2):
+    return np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+
+
+@njit(cache=True, nogil=True)
+def _angle_of(dot, na, nb):
+    """:func:`_angle_deg` from the dot product and the two norms."""
+    if na == 0.0 or nb == 0.0:
+        return 0.0
+    c = dot / (na * nb)
+    c = min(1.0, max(-1.0, c))
+    return np.degrees(np.arccos(c))
+
+
+@njit(cache=True, nogil=True)
 def interleaved(i, n):
     """The ``i``-th of ``n`` lines in the order 0, h, 1, h + 1, ... (``h = ceil(n / 2)``): a
     parallel loop over ``i`` then shares the two halves of a profiler's lines (one side of the
@@ -86,12 +101,11 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0, centred=False):
     phi_hat = np.zeros(n)
     if n < 2:
         return pts, sv, phi_hat
-    z = np.array([0.0, 0.0, 1.0])
     prev = np.zeros(3)
     d = np.zeros(3)
-    ra = np.zeros(3)
     rb = np.zeros(3)
     cum = 0.0
+    n_ra = 0.0  # |X_k - X_A|: the previous step's |X_{k+1} - X_A|
     nxt = 1
     lo = 0
     for k in range(n - 1):
@@ -103,21 +117,25 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0, centred=False):
                 lo += 1
             a = lo
         nxt = max(nxt, k + 1)
-        while nxt < n - 1 and _dist2(xyz, pts[nxt], pts[k]) < step * step:
+        while step > 0.0 and nxt < n - 1 and _dist2(xyz, pts[nxt], pts[k]) < step * step:  # (none < 0)
             nxt += 1
         b = nxt
+        ra0, ra1, ra2 = rb[0], rb[1], rb[2]  # X_k - X_A: the previous step's rb (unused at k = 0)
         for c in range(3):
             d[c] = xyz[pts[b], c] - xyz[pts[a], c]
-            ra[c] = xyz[pts[k], c] - origin[c]
             rb[c] = xyz[pts[k + 1], c] - origin[c]
-        v = _angle_deg(d, z)
+        # the angles of _angle_deg, each norm taken once (the same values, fewer square roots)
+        n_d = _norm(d[0], d[1], d[2])
+        n_rb = _norm(rb[0], rb[1], rb[2])
+        v = _angle_of(d[0] * 0.0 + d[1] * 0.0 + d[2] * 1.0, n_d, 1.0)  # with the z axis
         sign = 1.0
         if k > 0 and (d[0] * prev[0] + d[1] * prev[1] + d[2] * prev[2]) < 0.0:
             sign = -1.0
         sv[k] = sign * v
         if k > 0:
-            cum += _angle_deg(ra, rb)  # beam X_k -> X_{k+1}
-        phi_hat[k] = _angle_deg(d, rb) + cum
+            cum += _angle_of(ra0 * rb[0] + ra1 * rb[1] + ra2 * rb[2], n_ra, n_rb)  # beam X_k -> X_{k+1}
+        phi_hat[k] = _angle_of(d[0] * rb[0] + d[1] * rb[1] + d[2] * rb[2], n_d, n_rb) + cum
+        n_ra = n_rb
         for c in range(3):
             prev[c] = d[c]
     sv[n - 1] = sv[n - 2]
@@ -139,6 +157,14 @@ def hmm_cusum(x, means, sigma, a0, a1, h):
     -------
     changed : bool (n,)
     """
+    if means.shape[0] == 3:
+        return _hmm_cusum3(x, means, sigma, a0, a1, h)
+    return _hmm_cusum_n(x, means, sigma, a0, a1, h)
+
+
+@njit(cache=True, nogil=True)
+def _hmm_cusum_n(x, means, sigma, a0, a1, h):
+    """:func:`hmm_cusum` for any number of states."""
     n = x.shape[0]
     ns = means.shape[0]
     changed = np.zeros(n, np.bool_)
@@ -168,6 +194,59 @@ def hmm_cusum(x, means, sigma, a0, a1, h):
         for j in range(ns):
             f0[j] = p0[j] / l0
             f1[j] = p1[j] / l1
+        llr = np.log(l1) - np.log(l0)
+        if state == 1:
+            llr = -llr
+        w = max(0.0, w + llr)
+        if w == 0.0:
+            start = k + 1
+        elif w > h:
+            for j in range(start, k + 1):
+                changed[j] = state == 0
+            state = 1 - state
+            w = 0.0
+            start = k + 1
+        if state == 1:
+            changed[k] = True
+    return changed
+
+
+@njit(cache=True, nogil=True)
+def _hmm_cusum3(x, means, sigma, a0, a1, h):
+    """:func:`hmm_cusum` with three states (the paper's -90 / 0 / 90 deg), the filter held in
+    scalars: the same operations in the same order, so the same values bit for bit."""
+    n = x.shape[0]
+    changed = np.zeros(n, np.bool_)
+    f00 = f01 = f02 = 1.0 / 3
+    f10 = f11 = f12 = 1.0 / 3
+    m0, m1, m2 = means[0], means[1], means[2]
+    a000, a001, a002 = a0[0, 0], a0[0, 1], a0[0, 2]
+    a010, a011, a012 = a0[1, 0], a0[1, 1], a0[1, 2]
+    a020, a021, a022 = a0[2, 0], a0[2, 1], a0[2, 2]
+    a100, a101, a102 = a1[0, 0], a1[0, 1], a1[0, 2]
+    a110, a111, a112 = a1[1, 0], a1[1, 1], a1[1, 2]
+    a120, a121, a122 = a1[2, 0], a1[2, 1], a1[2, 2]
+    norm = 1.0 / (sigma * np.sqrt(2 * np.pi))
+    state = 0
+    w = 0.0
+    start = 0
+    for k in range(n):
+        r = (x[k] - m0) / sigma
+        e0 = np.exp(-0.5 * r * r) * norm + 1e-300
+        r = (x[k] - m1) / sigma
+        e1 = np.exp(-0.5 * r * r) * norm + 1e-300
+        r = (x[k] - m2) / sigma
+        e2 = np.exp(-0.5 * r * r) * norm + 1e-300
+        p00 = (((0.0 + f00 * a000) + f01 * a010) + f02 * a020) * e0
+        p10 = (((0.0 + f10 * a100) + f11 * a110) + f12 * a120) * e0
+        p01 = (((0.0 + f00 * a001) + f01 * a011) + f02 * a021) * e1
+        p11 = (((0.0 + f10 * a101) + f11 * a111) + f12 * a121) * e1
+        p02 = (((0.0 + f00 * a002) + f01 * a012) + f02 * a022) * e2
+        p12 = (((0.0 + f10 * a102) + f11 * a112) + f12 * a122) * e2
+        l0 = ((0.0 + p00) + p01) + p02
+        l1 = ((0.0 + p10) + p11) + p12
+        f00, f01, f02 = p00 / l0, p01 / l0, p02 / l0
+        f10, f11, f12 = p10 / l1, p11 / l1, p12 / l1
         llr = np.log(l1) - np.log(l0)
         if state == 1:
             llr = -llr

@@ -596,6 +596,29 @@ def grazing_links(seg, valid, xyz, min_rise, max_run):
     return low[:m], up[:m]
 
 
+@njit(cache=True, nogil=True)
+def segment_tops(seg, n, height, vegetation):
+    """Per id ``0..n`` of ``seg`` (rows, cols): the flat index of the highest return of the id
+    (the last in flat order among equal heights; 0 for an id without slots), the number of its
+    slots and how many of them are ``vegetation``, in one pass over the image. ``height`` must
+    be finite where ``seg`` > 0."""
+    R, C = seg.shape
+    top_at = np.zeros(n + 1, np.int64)
+    best = np.full(n + 1, -np.inf)
+    cnt = np.zeros(n + 1, np.int64)
+    veg = np.zeros(n + 1, np.int64)
+    for r in range(R):
+        for c in range(C):
+            k = seg[r, c]
+            cnt[k] += 1
+            if vegetation[r, c]:
+                veg[k] += 1
+            if k != 0 and height[r, c] >= best[k]:
+                best[k] = height[r, c]
+                top_at[k] = r * C + c
+    return top_at, cnt, veg.astype(np.float64)
+
+
 def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation, p):
     """Steps 4-6 on the segments 1..n of ``seg_o`` (rows in elevation order): the accepted mask
     per segment (index 0 unused, False) and the features behind it."""
@@ -604,16 +627,8 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     )
     share = high_touch / np.maximum(tops, 1)
     cols = seg_o.shape[1]
-    sel = np.flatnonzero(seg_o.ravel())
-    top_at = np.zeros(n + 1, np.int64)
-    if len(sel):
-        ids = seg_o.ravel()[sel]
-        by = np.lexsort((height.ravel()[sel], ids))
-        last = np.r_[np.flatnonzero(np.diff(ids[by])), len(by) - 1]
-        top_at[ids[by][last]] = sel[by][last]
+    top_at, cnt_all, veg = segment_tops(seg_o, n, height, vegetation)
     top_gap = rng.ravel()[top_at] * np.abs(gaps[top_at // cols])
-    cnt_all = np.bincount(seg_o.ravel(), minlength=n + 1)
-    veg = np.bincount(seg_o.ravel(), weights=vegetation.ravel(), minlength=n + 1)
     veg_share = veg / np.maximum(cnt_all, 1)
     roof = hhi + np.minimum(top_gap, p.max_top_gap)
     ok = (

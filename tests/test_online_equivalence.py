@@ -1,0 +1,166 @@
+"""The online detectors' fast kernels against simple references of the same definitions
+(the kernels were rewritten for speed; their results must stay the same bit for bit)."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from prc_slam.online import kernels as K
+from prc_slam.online.curb import group_medians, possible_curbs, region_stats
+from prc_slam.online.spinning import segment_tops
+
+SETTINGS = settings(max_examples=60, deadline=None)
+
+
+def stochastic(rng: np.random.Generator, n: int) -> np.ndarray:
+    a = rng.random((n, n)) + 1e-3
+    return a / a.sum(axis=1, keepdims=True)
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(0, 60))
+def test_three_state_hmm_cusum_is_the_general_one(seed, n):
+    rng = np.random.default_rng(seed)
+    x = rng.choice([-90.0, 0.0, 90.0], n) + rng.normal(0, rng.choice([5.0, 40.0]), n)
+    means = np.sort(rng.uniform(-150, 150, 3))
+    a0, a1 = stochastic(rng, 3), stochastic(rng, 3)
+    for sigma, h in [(20.0, 10.0), (float(rng.uniform(5, 50)), float(rng.uniform(0.5, 12)))]:
+        fast = K._hmm_cusum3(x, means, sigma, a0, a1, h)
+        general = K._hmm_cusum_n(x, means, sigma, a0, a1, h)
+        np.testing.assert_array_equal(fast, general)
+    assert K.hmm_cusum(x, means, 20.0, a0, a1, 10.0).shape == (n,)
+
+
+def line_statistics_reference(xyz, valid, line, origin, min_step=0.0, centred=False):
+    """The definition of :func:`K.line_statistics`, one angle at a time with ``_angle_deg``."""
+    pts = np.array([s for s in line if s >= 0 and valid[s]], np.int64)
+    n = len(pts)
+    sv, phi = np.zeros(n), np.zeros(n)
+    if n < 2:
+        return pts, sv, phi
+    z = np.array([0.0, 0.0, 1.0])
+    prev = np.zeros(3)
+    cum, nxt, lo = 0.0, 1, 0
+    for k in range(n - 1):
+        a, step = k, min_step
+        if centred and min_step > 0.0:
+            step = 0.5 * min_step
+            while lo + 1 < k and K._dist2(xyz, pts[lo + 1], pts[k]) >= step * step:
+                lo += 1
+            a = lo
+        nxt = max(nxt, k + 1)
+        while nxt < n - 1 and K._dist2(xyz, pts[nxt], pts[k]) < step * step:
+            nxt += 1
+        d = xyz[pts[nxt]] - xyz[pts[a]]
+        ra, rb = xyz[pts[k]] - origin, xyz[pts[k + 1]] - origin
+        sign = -1.0 if k > 0 and (d[0] * prev[0] + d[1] * prev[1] + d[2] * prev[2]) < 0.0 else 1.0
+        sv[k] = sign * K._angle_deg(d, z)
+        if k > 0:
+            cum += K._angle_deg(ra, rb)
+        phi[k] = K._angle_deg(d, rb) + cum
+        prev = d
+    sv[-1], phi[-1] = sv[-2], phi[-2]
+    return pts, sv, phi
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(0, 40), st.sampled_from([(0.0, False), (0.3, False), (0.3, True)]))
+def test_line_statistics_is_its_definition(seed, n, step):
+    rng = np.random.default_rng(seed)
+    xyz = rng.normal(0, 5, (n + 3, 3))
+    xyz[rng.random(n + 3) < 0.1] = xyz[0]  # repeated points: zero-length steps
+    valid = rng.random(n + 3) < 0.85
+    line = np.full(n + 5, -1, np.int64)
+    line[:n] = rng.permutation(n + 3)[:n]
+    got = K.line_statistics(xyz, valid, line, np.zeros(3), *step)
+    ref = line_statistics_reference(xyz, valid, line, np.zeros(3), *step)
+    for g, r in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(g, r)
+
+
+def possible_curbs_reference(xyz, codes, ground, valid, lines, z_line, t_high, look_back, under_eps, last_only):
+    out = []
+    for li, line in enumerate(lines):
+        pts = [s for s in line if s >= 0 and valid[s]]
+        first = max([k for k, s in enumerate(pts) if ground[s]], default=0) if last_only else 0
+        found, searching = [], False
+        for k in range(first, len(pts)):
+            s = pts[k]
+            if ground[s]:
+                searching = True
+            elif searching and xyz[s, 2] > z_line[li] + t_high:
+                searching = False
+            elif searching and codes[s] == 69:
+                far = max([np.sqrt((xyz[q] ** 2).sum()) for q in pts[max(0, k - look_back) : k]], default=0.0)
+                if far - np.sqrt((xyz[s] ** 2).sum()) <= under_eps:
+                    found.append(s)
+                    searching = False
+        out.append(found)
+    return out
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.booleans(), st.integers(1, 8))
+def test_possible_curbs_is_its_definition(seed, last_only, look_back):
+    rng = np.random.default_rng(seed)
+    n_lines, width = 4, 24
+    n = n_lines * width
+    xyz = rng.normal(0, 3, (n, 3))
+    codes = rng.choice(np.array([68, 69, 5], np.uint8), n)
+    ground = rng.random(n) < 0.3
+    valid = rng.random(n) < 0.9
+    lines = rng.permutation(n).reshape(n_lines, width)
+    lines[:, width - 3 :] = -1
+    z_line = rng.normal(0, 1, n_lines)
+    got = possible_curbs(xyz, codes, ground, valid, lines, z_line, 2.0, look_back, 0.01, last_only)
+    ref = possible_curbs_reference(xyz, codes, ground, valid, lines, z_line, 2.0, look_back, 0.01, last_only)
+    for g, r in zip(got, ref, strict=True):
+        assert list(g[g >= 0]) == r
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.booleans())
+def test_region_stats_and_group_medians(seed, by_column):
+    rng = np.random.default_rng(seed)
+    rows, cols, n = int(rng.integers(1, 7)), int(rng.integers(1, 9)), int(rng.integers(0, 6))
+    regions = rng.integers(0, n + 1, (rows, cols)).astype(np.int32)
+    z = rng.normal(0, 1, (rows, cols)).astype(np.float32)
+    zmin, zmax, size, n_lines = region_stats(regions, z, n, by_column)
+    line = np.broadcast_to(np.arange(cols)[None, :] if by_column else np.arange(rows)[:, None], (rows, cols))
+    for k in range(1, n + 1):
+        sel = regions == k
+        assert size[k] == sel.sum()
+        assert n_lines[k] == len(np.unique(line[sel]))
+        assert zmin[k] == (z[sel].min() if sel.any() else np.inf)
+        assert zmax[k] == (z[sel].max() if sel.any() else -np.inf)
+    ids = regions.ravel()
+    values = rng.normal(0, 30, ids.size).astype(np.float32)
+    groups = np.arange(1, n + 1)
+    med = group_medians(ids, values, groups)
+    for g, m in zip(groups, med, strict=True):
+        sel = values[ids == g]
+        assert (np.isnan(m) and not len(sel)) or np.float32(m) == np.median(sel)
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1))
+def test_segment_tops_is_the_last_highest_return(seed):
+    rng = np.random.default_rng(seed)
+    rows, cols, n = int(rng.integers(1, 6)), int(rng.integers(1, 9)), int(rng.integers(0, 5))
+    seg = rng.integers(0, n + 1, (rows, cols)).astype(np.int32)
+    height = rng.choice([0.0, 0.5, 1.0, -0.0], (rows, cols)) + rng.choice([0.0, 0.1], (rows, cols))  # ties
+    veg = rng.random((rows, cols)) < 0.4
+    top_at, cnt, nveg = segment_tops(seg, n, height, veg)
+    # the reference: a stable lexsort by (segment, height), the last of each segment
+    flat = seg.ravel()
+    sel = np.flatnonzero(flat)
+    ref = np.zeros(n + 1, np.int64)
+    if len(sel):
+        by = np.lexsort((height.ravel()[sel], flat[sel]))
+        last = np.r_[np.flatnonzero(np.diff(flat[sel][by])), len(by) - 1]
+        ref[flat[sel][by][last]] = sel[by][last]
+    np.testing.assert_array_equal(top_at, ref)
+    np.testing.assert_array_equal(cnt, np.bincount(flat, minlength=n + 1))
+    np.testing.assert_array_equal(nveg, np.bincount(flat, weights=veg.ravel(), minlength=n + 1))
