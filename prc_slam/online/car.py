@@ -33,7 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from prc_slam.online import kernels as K
 from prc_slam.online.coarse import CoarseResult, line_values
@@ -95,7 +95,7 @@ def _norm(xyz, a):
     return np.sqrt((xyz[a] ** 2).sum())
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def car_lines(
     xyz,
     codes,
@@ -120,8 +120,7 @@ def car_lines(
     """Car mask per slot over all scan lines (Sec. 7.2-7.6 and the curb correction of Sec. 8).
     ``curb_slot[line]`` is the line's verified curb return (-1 if none)."""
     car = np.zeros(xyz.shape[0], np.bool_)
-    for i in prange(lines.shape[0]):  # lines are independent; each writes only its slots
-        li = K.interleaved(i, lines.shape[0])
+    for li in range(lines.shape[0]):  # lines are independent; each writes only its slots
         line = lines[li]
         n_all = 0
         while n_all < line.shape[0] and line[n_all] >= 0:
@@ -311,6 +310,8 @@ def detect_cars(
     empty = np.zeros(scan.shape, dtype=bool)
     if z_ground is None:
         return CarResult(empty, np.zeros(scan.shape, np.int32))
+    if coarse.t_prime is None:
+        raise ValueError(f"{scan.source}: detect_cars needs the coarse classification with T' (t_prime=True)")
     xyz = scan.slot_xyz64()
     lines = coarse.lines
     z_line = line_values(z_ground, len(lines))

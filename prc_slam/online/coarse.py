@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from prc_slam import labels as L
 from prc_slam.online import kernels as K
@@ -108,29 +108,33 @@ def line_values(value: float | np.ndarray, n_lines: int) -> np.ndarray:
 def shared_first(scan: Scan) -> int:
     """How many leading lines of :func:`scan_lines` share their first slot with a later line
     (a profiler's up lines); kernels leave that slot's per-slot results to the later line, so
-    that parallel loops write every slot once."""
+    that every slot is written once."""
     return scan.shape[0] if isinstance(scan.sensor, ProfilerSensor) else 0
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th, min_step, centred, shared):
+@njit(cache=True, nogil=True)
+def _classify_lines(
+    xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th, min_step, centred, shared, with_tp
+):
     n_slots = xyz.shape[0]
     codes = np.zeros(n_slots, np.uint8)
     t_prime = np.zeros(n_slots, np.bool_)
     sv_out = np.zeros(n_slots, np.float32)
     phi_out = np.zeros(n_slots, np.float32)
-    for i in prange(lines.shape[0]):  # scan lines are independent; each writes only its slots
-        li = K.interleaved(i, lines.shape[0])
+    for li in range(lines.shape[0]):  # scan lines are independent; each writes only its slots
         origin = np.zeros(3)
         pts, sv, phi = K.line_statistics(xyz, valid, lines[li], origin, min_step, centred)
         n = pts.shape[0]
         if n == 0:
             continue
         veg = K.hmm_cusum(sv, vm, vs, va0, va1, vh)
-        sd = np.zeros(n)
-        for k in range(1, n):
-            sd[k] = sv[k] - sv[k - 1]
-        tp = K.hmm_cusum(sd, tm, ts, ta0, ta1, th)
+        if with_tp:
+            sd = np.zeros(n)
+            for k in range(1, n):
+                sd[k] = sv[k] - sv[k - 1]
+            tp = K.hmm_cusum(sd, tm, ts, ta0, ta1, th)
+        else:
+            tp = veg  # not written
         m = 0
         for k in range(n):
             if not veg[k]:
@@ -151,7 +155,8 @@ def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0
                 continue
             sv_out[s] = sv[k]
             phi_out[s] = phi[k]
-            t_prime[s] = tp[k]
+            if with_tp:
+                t_prime[s] = tp[k]
             if veg[k]:
                 codes[s] = 5
             else:
@@ -163,18 +168,22 @@ def _classify_lines(xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0
 @dataclass
 class CoarseResult:
     """Per-slot results: ``codes`` (68 horizontal, 69 vertical, 5 vegetation, 0 no return),
-    ``t_prime`` (less sensitive vegetation), signed angles ``sv`` and line angles ``phi_hat``;
-    and the scan lines they were computed on (:func:`scan_lines`), which the later stages use."""
+    ``t_prime`` (less sensitive vegetation, Sec. 7.1; None when not asked for: only the per-column
+    car algorithm of Sec. 7 uses it), signed angles ``sv`` and line angles ``phi_hat``; and the
+    scan lines they were computed on (:func:`scan_lines`), which the later stages use."""
 
     codes: np.ndarray
-    t_prime: np.ndarray
+    t_prime: np.ndarray | None
     sv: np.ndarray
     phi_hat: np.ndarray
     lines: np.ndarray
 
 
-def coarse_classify(scan: Scan, params: CoarseParams | None = None) -> CoarseResult:
-    """Run the coarse H / V / T classifier and T' on every scan line of ``scan``."""
+def coarse_classify(scan: Scan, params: CoarseParams | None = None, t_prime: bool = True) -> CoarseResult:
+    """Run the coarse H / V / T classifier and (``t_prime``) T' on every scan line of ``scan``.
+
+    Without ``t_prime`` the result's ``t_prime`` is None: one CUSUM per return less (the
+    spinning-sensor path, :mod:`prc_slam.online.spinning`, does not use T')."""
     p = params or CoarseParams()
     xyz = scan.slot_xyz64()
     valid = scan.valid.ravel()
@@ -184,8 +193,9 @@ def coarse_classify(scan: Scan, params: CoarseParams | None = None) -> CoarseRes
         np.array(p.veg_means, float), p.veg_sigma, p.veg_slow, p.veg_fast, p.veg_h,
         p.hv_sigma, p.hv_h,
         np.array(p.tp_means, float), p.tp_sigma, p.tp_regular, p.tp_fast, p.tp_h,
-        p.min_step, p.centred, shared_first(scan),
+        p.min_step, p.centred, shared_first(scan), t_prime,
     )  # fmt: skip
     shape = scan.shape
     assert L.VEGETATION == 5 and L.HORIZONTAL == 68 and L.VERTICAL == 69  # codes used by the kernel
-    return CoarseResult(codes.reshape(shape), tp.reshape(shape), sv.reshape(shape), phi.reshape(shape), lines)
+    tp = tp.reshape(shape) if t_prime else None
+    return CoarseResult(codes.reshape(shape), tp, sv.reshape(shape), phi.reshape(shape), lines)

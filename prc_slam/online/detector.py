@@ -111,11 +111,12 @@ class OnlineDetector:
         (``car_boxes_world``, ``curb_polylines_world``; empty without a pose).
         """
         t0 = time.perf_counter()
-        coarse = coarse_classify(scan, self.coarse_params or default_coarse_params(scan))
+        spinning = self.spinning_path and isinstance(scan.sensor, SpinningSensor)
+        # T' only for the per-column car algorithm (a spinning sensor always takes the spinning path)
+        coarse = coarse_classify(scan, self.coarse_params or default_coarse_params(scan), t_prime=not spinning)
         ground = self.ground.process(scan, coarse)
         heights = self.ground.line_heights if self.per_line_height else self.ground.height
         line_heights = self.ground.line_heights
-        spinning = self.spinning_path and isinstance(scan.sensor, SpinningSensor)
         if spinning and line_heights is None:  # columns too short for Sec. 5 (a): the column profile
             ground, line_heights, heights = column_ground(scan, coarse.lines)
             if self.per_line_height:

@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from prc_slam import labels as L
 from prc_slam.online import kernels as K
@@ -209,20 +209,6 @@ def _lowest_mean(z, k):
     return s[:m].mean()
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def first_runs(slot_codes, slot_phi, valid, lines, run_len, phi_bw):
-    """Part (a) from the start of every line, ``int64[L, 2]`` (start, end) or (-1, -1): it
-    does not depend on the state carried across lines, so all lines run in parallel."""
-    out = np.full((lines.shape[0], 2), -1, np.int64)
-    for i in prange(lines.shape[0]):
-        li = K.interleaved(i, lines.shape[0])
-        pts = K.line_returns(lines[li], valid)
-        a, b = _potential_ground(slot_codes[pts], slot_phi[pts].astype(np.float64), 0, run_len, phi_bw)
-        out[li, 0] = a
-        out[li, 1] = b
-    return out
-
-
 @njit(cache=True, nogil=True)
 def ground_lines(
     xyz,
@@ -230,7 +216,6 @@ def ground_lines(
     slot_phi,
     valid,
     lines,
-    first_run,
     z_hist,
     n_hist,
     zd,
@@ -243,8 +228,7 @@ def ground_lines(
     n_init,
 ):
     """Parts (a) and (b) over all lines of a frame, continuing the state ``(z_hist, n_hist,
-    zd, have_zd)``; ``first_run`` is :func:`first_runs` of ``lines``. Returns the ground mask
-    per slot, the per-line ground height and the state."""
+    zd, have_zd)``. Returns the ground mask per slot, the per-line ground height and the state."""
     n_slots = xyz.shape[0]
     ground = np.zeros(n_slots, np.bool_)
     line_height = np.full(lines.shape[0], np.nan)
@@ -257,10 +241,7 @@ def ground_lines(
         zs = xyz[pts, 2]
         first = 0
         while True:
-            if first == 0:
-                a, b = first_run[li, 0], first_run[li, 1]
-            else:
-                a, b = _potential_ground(codes, phi, first, run_len, phi_bw)
+            a, b = _potential_ground(codes, phi, first, run_len, phi_bw)
             if a < 0:
                 break
             zi = _lowest_mean(zs[a:b], 5)
@@ -323,9 +304,8 @@ class GroundDetector:
     def _run(self, args: tuple, lines: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:func:`ground_lines` on ``lines`` from the current state; updates the state."""
         p = self.params
-        first = first_runs(*args[1:], lines, p.run_len, p.phi_bandwidth)
         ground, heights, pending, self.z_hist, self.n_hist, self.zd, self.have_zd = ground_lines(
-            *args, lines, first, self.z_hist, self.n_hist, self.zd, self.have_zd,
+            *args, lines, self.z_hist, self.n_hist, self.zd, self.have_zd,
             p.run_len, p.phi_bandwidth, p.z_bandwidth, p.rel_tolerance, p.grow_tolerance, p.n_init,
         )  # fmt: skip
         return ground, heights, pending

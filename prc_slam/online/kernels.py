@@ -37,15 +37,6 @@ def _angle_of(dot, na, nb):
 
 
 @njit(cache=True, nogil=True)
-def interleaved(i, n):
-    """The ``i``-th of ``n`` lines in the order 0, h, 1, h + 1, ... (``h = ceil(n / 2)``): a
-    parallel loop over ``i`` then shares the two halves of a profiler's lines (one side of the
-    street each, :func:`prc_slam.online.coarse.scan_lines`) evenly between threads."""
-    half = (n + 1) // 2
-    return i // 2 if i % 2 == 0 else half + i // 2
-
-
-@njit(cache=True, nogil=True)
 def _dist2(xyz, i, j):
     dx = xyz[i, 0] - xyz[j, 0]
     dy = xyz[i, 1] - xyz[j, 1]
