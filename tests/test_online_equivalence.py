@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from prc_slam.online import kernels as K
 from prc_slam.online.curb import group_medians, possible_curbs, region_stats
-from prc_slam.online.spinning import segment_tops
+from prc_slam.online.spinning import _heights, segment_tops
 
 SETTINGS = settings(max_examples=60, deadline=None)
 
@@ -164,3 +164,22 @@ def test_segment_tops_is_the_last_highest_return(seed):
     np.testing.assert_array_equal(top_at, ref)
     np.testing.assert_array_equal(cnt, np.bincount(flat, minlength=n + 1))
     np.testing.assert_array_equal(nveg, np.bincount(flat, weights=veg.ravel(), minlength=n + 1))
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1))
+def test_car_heights_are_their_definition(seed):
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(1, 6)), int(rng.integers(1, 9)))
+    z = rng.choice([np.nan, np.inf, 0.0, 1.0], shape, p=[0.1, 0.05, 0.05, 0.8]) * rng.uniform(-3, 3, shape)
+    z = z.astype(np.float32)
+    zg = np.where(rng.random(shape) < 0.2, np.nan, rng.normal(-1.7, 0.2, shape))
+    valid, ground = rng.random(shape) < 0.8, rng.random(shape) < 0.3
+    height, cand, high, h_zero, h_down = _heights(z, zg, valid, ground, 0.25, 2.6)
+    with np.errstate(invalid="ignore"):  # inf - inf
+        ref = z - np.where(np.isnan(zg), np.inf, zg)
+    np.testing.assert_array_equal(height, ref)
+    np.testing.assert_array_equal(cand, valid & ~ground & (ref >= 0.25) & (ref <= 2.6))
+    np.testing.assert_array_equal(high, valid & (ref > 2.6))
+    np.testing.assert_array_equal(h_zero, np.where(np.isfinite(ref), ref, 0.0))
+    np.testing.assert_array_equal(h_down, np.where(np.isfinite(ref), ref, -np.inf))

@@ -79,6 +79,7 @@ import numpy as np
 from numba import njit
 
 from prc_slam.online.car import oriented_box
+from prc_slam.online.coarse import elevation_rows
 from prc_slam.scan import Scan, SpinningSensor
 
 
@@ -710,6 +711,30 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
     return final[seg_o].astype(np.int32), int(ok_g[1:].sum())
 
 
+@njit(cache=True, nogil=True)
+def _heights(z, zg, valid, ground, min_above, max_height):
+    """Per slot: the height above the local ground ``zg`` (``-inf`` where it is NaN), the
+    candidates of step 2 (valid, not ground, ``min_above`` to ``max_height`` high), the returns
+    above ``max_height``, and the height with non-finite values as 0 and as ``-inf``."""
+    R, C = z.shape
+    height = np.empty((R, C))
+    cand = np.empty((R, C), np.bool_)
+    high = np.empty((R, C), np.bool_)
+    h_zero = np.empty((R, C))
+    h_down = np.empty((R, C))
+    for r in range(R):
+        for c in range(C):
+            g = zg[r, c]
+            h = np.float64(z[r, c]) - (np.inf if np.isnan(g) else g)
+            height[r, c] = h
+            cand[r, c] = valid[r, c] and not ground[r, c] and h >= min_above and h <= max_height
+            high[r, c] = valid[r, c] and h > max_height
+            fin = np.isfinite(h)
+            h_zero[r, c] = h if fin else 0.0
+            h_down[r, c] = h if fin else -np.inf
+    return height, cand, high, h_zero, h_down
+
+
 def detect_cars_spinning(
     scan: Scan,
     ground: np.ndarray,
@@ -734,28 +759,24 @@ def detect_cars_spinning(
     valid = scan.valid
     if zg is None:
         zg = local_ground(lines, ground.ravel(), xyz[..., 2].ravel(), line_height)
-    zg = zg.reshape(rows, cols)
-    height = xyz[..., 2] - np.where(np.isnan(zg), np.inf, zg)
+    height, cand, high, h_zero, h_down = _heights(
+        xyz[..., 2], zg.reshape(rows, cols), valid, ground, p.min_above_ground, p.max_height
+    )
     order = np.argsort(sensor.altitude, kind="stable")  # rows by elevation, lowest first
     alt = np.ascontiguousarray(sensor.altitude[order])
     # views when the rows are already in (reversed) elevation order, as most readers give them
-    if (order == np.arange(rows)).all():
-        by_elevation = slice(None)
-    elif (order == np.arange(rows)[::-1]).all():
-        by_elevation = slice(None, None, -1)
-    else:
-        by_elevation = order
+    by_elevation = elevation_rows(sensor.altitude)
     o_xyz = xyz[by_elevation]
     o_valid = valid[by_elevation]
     o_h = height[by_elevation]
-    cand = o_valid & ~ground[by_elevation] & (o_h >= p.min_above_ground) & (o_h <= p.max_height)
-    high = o_valid & (o_h > p.max_height)
+    cand = cand[by_elevation]
+    high = high[by_elevation]
     rng = scan.ranges[by_elevation]
     seg_o, n, high_touch, tops = segment_candidates(
         cand, o_valid, high, o_xyz, rng, 2.0 * np.pi / cols, alt,
         p.min_gate, p.gate_factor, p.max_gate, p.see_through, int(p.diagonal), o_h, p.top_floor,
     )  # fmt: skip
-    h_o = np.where(np.isfinite(o_h), o_h, 0.0)
+    h_o = h_zero[by_elevation]
     veg_o = vegetation[by_elevation]
     # the top is seen up to one beam gap below the object's top (a 16-beam sensor's 2 deg are 0.5 m
     # at 15 m): the roof test allows for the gap above the highest return of each segment
@@ -767,7 +788,7 @@ def detect_cars_spinning(
         seg_o, n, ok, feats["bottom"], feats["roof"], high, alt, o_xyz, h_o, o_valid, rng, gaps, veg_o, p
     )
     if p.down_to > 0:
-        inst_o = grow_down(inst_o, o_valid, o_xyz, np.where(np.isfinite(o_h), o_h, -np.inf), alt, p.down_to, p.min_gate)
+        inst_o = grow_down(inst_o, o_valid, o_xyz, h_down[by_elevation], alt, p.down_to, p.min_gate)
     seg = np.empty_like(seg_o)
     seg[order] = seg_o
     instances = np.empty_like(inst_o)
