@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from prc_slam.online import kernels as K
+from prc_slam.online.car import oriented_box, oriented_boxes_of
 from prc_slam.online.curb import group_medians, possible_curbs, region_stats
 from prc_slam.online.spinning import _heights, segment_tops
 
@@ -183,3 +184,34 @@ def test_car_heights_are_their_definition(seed):
     np.testing.assert_array_equal(high, valid & (ref > 2.6))
     np.testing.assert_array_equal(h_zero, np.where(np.isfinite(ref), ref, 0.0))
     np.testing.assert_array_equal(h_down, np.where(np.isfinite(ref), ref, -np.inf))
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.float32, np.float64]), st.booleans())
+def test_boxes_in_one_kernel_are_oriented_box(seed, dtype, on_a_line):
+    """The batch kernel against ``oriented_box`` (np.cov and np.linalg.eigh) per instance: the same
+    boxes to rounding, the same axis sign (yaw), on elongated, round and degenerate footprints."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 5))
+    parts, ids = [], []
+    for k in range(1, n + 1):
+        m = int(rng.integers(1, 300))
+        p = rng.normal(size=(m, 3)) * [rng.uniform(0.05, 2.5), rng.uniform(0.05, 1.0), 0.5]
+        t = rng.uniform(-np.pi, np.pi)
+        p[:, :2] = p[:, :2] @ np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]]).T + rng.normal(0, 30, 2)
+        if on_a_line:
+            p[:, int(rng.integers(0, 2))] = p[0, 0]  # all on one line along x or y: no cross term
+        parts.append(p)
+        ids += [k] * m
+    order = rng.permutation(len(ids))
+    pts, ids = np.concatenate(parts)[order].astype(dtype), np.array(ids)[order]
+    ids[rng.random(len(ids)) < 0.2] = 0
+    got = oriented_boxes_of(ids, pts)
+    ref = [oriented_box(pts[ids == k]) for k in range(1, n + 1) if (ids == k).any()]
+    assert len(got) == len(ref)
+    for g, r in zip(got, ref, strict=True):
+        assert g["points"] == r["points"]
+        np.testing.assert_allclose(
+            g["center"] + g["size"] + [g["yaw"]], r["center"] + r["size"] + [r["yaw"]], atol=1e-9
+        )
+    assert oriented_boxes_of(np.zeros(3, np.int64), np.zeros((3, 3))) == []

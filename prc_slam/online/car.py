@@ -298,6 +298,173 @@ def oriented_box(pts: np.ndarray) -> dict:
     }
 
 
+_EPS = 2.0**-53  # LAPACK's dlamch('E')
+_SAFMIN = 2.2250738585072014e-308  # dlamch('S')
+
+
+@njit(cache=True, nogil=True)
+def _principal_axis(a, b, c):
+    """The eigenvector of the largest eigenvalue of the symmetric ``[[a, b], [b, c]]`` as
+    ``np.linalg.eigh`` gives it (LAPACK ``dsyevd``: a 2 x 2 is ``dsteqr`` on its own tridiagonal,
+    which splits when ``b`` is negligible and otherwise rotates by ``dlaev2``; eigenvalues
+    sorted ascending, ties keep the first): the same direction and sign."""
+    eps2 = _EPS * _EPS
+    if b == 0.0 or abs(b) <= (np.sqrt(abs(a)) * np.sqrt(abs(c))) * _EPS or b * b <= (eps2 * abs(a)) * abs(c) + _SAFMIN:
+        return (0.0, 1.0) if c > a else (1.0, 0.0)
+    # dlaev2(a, b, c): rt1 the eigenvalue of larger absolute value, (cs1, sn1) its eigenvector
+    sm = a + c
+    df = a - c
+    adf = abs(df)
+    tb = b + b
+    ab = abs(tb)
+    if abs(a) > abs(c):
+        acmx, acmn = a, c
+    else:
+        acmx, acmn = c, a
+    if adf > ab:
+        rt = adf * np.sqrt(1.0 + (ab / adf) ** 2)
+    elif adf < ab:
+        rt = ab * np.sqrt(1.0 + (adf / ab) ** 2)
+    else:
+        rt = ab * np.sqrt(2.0)
+    if sm < 0.0:
+        rt1 = 0.5 * (sm - rt)
+        sgn1 = -1
+        rt2 = (acmx / rt1) * acmn - (b / rt1) * b
+    elif sm > 0.0:
+        rt1 = 0.5 * (sm + rt)
+        sgn1 = 1
+        rt2 = (acmx / rt1) * acmn - (b / rt1) * b
+    else:
+        rt1 = 0.5 * rt
+        rt2 = -0.5 * rt
+        sgn1 = 1
+    if df >= 0.0:
+        cs = df + rt
+        sgn2 = 1
+    else:
+        cs = df - rt
+        sgn2 = -1
+    if abs(cs) > ab:
+        ct = -tb / cs
+        sn1 = 1.0 / np.sqrt(1.0 + ct * ct)
+        cs1 = ct * sn1
+    else:
+        tn = -cs / tb
+        cs1 = 1.0 / np.sqrt(1.0 + tn * tn)
+        sn1 = tn * cs1
+    if sgn1 == sgn2:
+        tn = cs1
+        cs1 = -sn1
+        sn1 = tn
+    # eigenvectors (cs1, sn1) for rt1 and (-sn1, cs1) for rt2, sorted ascending by eigenvalue
+    if rt2 < rt1 or rt2 == rt1:
+        return (cs1, sn1)
+    return (-sn1, cs1)
+
+
+@njit(cache=True, nogil=True)
+def box_parameters(ids, pts, n):
+    """:func:`oriented_box` of the points of every id ``1..n`` (``ids`` per row of ``pts``,
+    float32 or float64 (N, 3); 0 = none), each over its points in array order. Returns per id (row
+    ``k - 1``) centre (3), size (3), yaw and the point count: the mean, offsets and heights in the
+    points' precision as ``oriented_box`` takes them, the covariance and its axis in float64."""
+    count = np.zeros(n + 1, np.int64)
+    for k in ids:
+        count[k] += 1
+    start = np.zeros(n + 2, np.int64)
+    for k in range(1, n + 1):
+        start[k + 1] = start[k] + count[k]
+    fill = start.copy()
+    member = np.empty(start[n + 1], np.int64)
+    for i in range(ids.shape[0]):
+        k = ids[i]
+        if k > 0:
+            member[fill[k]] = i
+            fill[k] += 1
+    centre = np.zeros((n, 3))
+    size = np.zeros((n, 3))
+    yaw = np.zeros(n)
+    for k in range(1, n + 1):
+        i0, i1 = start[k], start[k + 1]
+        m = i1 - i0
+        if m == 0:
+            continue
+        sx = pts.dtype.type(0.0)
+        sy = pts.dtype.type(0.0)
+        for j in range(i0, i1):
+            sx += pts[member[j], 0]
+            sy += pts[member[j], 1]
+        cx = sx / pts.dtype.type(m)  # in the points' precision, as np.mean sums them in order
+        cy = sy / pts.dtype.type(m)
+        x = np.empty(m)
+        y = np.empty(m)
+        for j in range(m):
+            x[j] = np.float64(pts[member[i0 + j], 0] - cx)  # offsets in the points' precision, as numpy
+            y[j] = np.float64(pts[member[i0 + j], 1] - cy)
+        if m > 2:  # np.cov: centred again, sums over m - 1
+            mx = x.sum() / m
+            my = y.sum() / m
+            a = 0.0
+            b = 0.0
+            c = 0.0
+            for j in range(m):
+                u = x[j] - mx
+                v = y[j] - my
+                a += u * u
+                b += u * v
+                c += v * v
+            f = 1.0 / (m - 1)
+            ax, ay = _principal_axis(a * f, b * f, c * f)
+        else:
+            ax, ay = 1.0, 0.0  # np.eye(2)
+        t = np.arctan2(ay, ax)
+        ct = np.cos(t)
+        st = np.sin(t)
+        lo_u = np.inf
+        hi_u = -np.inf
+        lo_v = np.inf
+        hi_v = -np.inf
+        for j in range(m):
+            u = x[j] * ct + y[j] * st
+            v = -x[j] * st + y[j] * ct
+            lo_u = min(lo_u, u)
+            hi_u = max(hi_u, u)
+            lo_v = min(lo_v, v)
+            hi_v = max(hi_v, v)
+        mu = (lo_u + hi_u) / 2
+        mv = (lo_v + hi_v) / 2
+        zlo = pts[member[i0], 2]
+        zhi = pts[member[i0], 2]
+        for j in range(i0, i1):
+            zlo = min(zlo, pts[member[j], 2])
+            zhi = max(zhi, pts[member[j], 2])
+        centre[k - 1, 0] = np.float64(cx) + (mu * ct - mv * st)
+        centre[k - 1, 1] = np.float64(cy) + (mu * st + mv * ct)
+        centre[k - 1, 2] = (zlo + zhi) / pts.dtype.type(2.0)
+        size[k - 1, 0] = hi_u - lo_u
+        size[k - 1, 1] = hi_v - lo_v
+        size[k - 1, 2] = zhi - zlo
+        yaw[k - 1] = t
+    return centre, size, yaw, count[1:]
+
+
+def oriented_boxes_of(ids: np.ndarray, pts: np.ndarray) -> list[dict]:
+    """:func:`oriented_box` for every id ``1..max(ids)`` that has points (``ids`` per row of
+    ``pts``, 0 = none), in one kernel; the same boxes to rounding (below 1e-9)."""
+    ids = np.ascontiguousarray(ids, dtype=np.int64)
+    n = int(ids.max()) if len(ids) else 0
+    if n == 0:
+        return []
+    pts = np.ascontiguousarray(pts, dtype=pts.dtype if pts.dtype in (np.float32, np.float64) else np.float64)
+    centre, size, yaw, count = box_parameters(ids, pts, n)
+    return [
+        {"center": centre[k].tolist(), "size": size[k].tolist(), "yaw": float(yaw[k]), "points": int(count[k])}
+        for k in range(n)
+        if count[k] > 0
+    ]
+
+
 def detect_cars(
     scan: Scan,
     coarse: CoarseResult,
@@ -446,11 +613,4 @@ def car_instances(
     remap = np.zeros(len(sizes), np.int32)
     remap[keep] = np.arange(1, keep.sum() + 1)
     lab.ravel()[members] = remap[comp]
-    boxes = []
-    flat = remap[comp]
-    order = np.argsort(flat, kind="stable")
-    order = order[flat[order] > 0]
-    cuts = np.flatnonzero(np.diff(flat[order])) + 1
-    for idx in np.split(order, cuts) if len(order) else []:  # one box per car (a handful per frame)
-        boxes.append(oriented_box(pts_all[idx]))
-    return lab, boxes
+    return lab, oriented_boxes_of(remap[comp], pts_all)

@@ -78,7 +78,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from prc_slam.online.car import oriented_box
+from prc_slam.online.car import oriented_boxes_of
 from prc_slam.online.coarse import elevation_rows
 from prc_slam.scan import Scan, SpinningSensor
 
@@ -801,19 +801,8 @@ def detect_cars_spinning(
 def oriented_boxes(instances: np.ndarray, xyz: np.ndarray) -> list[dict]:
     """One oriented box per instance id 1..n of ``instances`` (rows, cols) from ``xyz`` (rows,
     cols, 3): centre xyz, size (length along the footprint's principal axis, width, height), yaw
-    of that axis (rad), point count."""
-    flat = instances.ravel()
-    members = np.flatnonzero(flat)
-    if len(members) == 0:
-        return []
-    pts_all = xyz.reshape(-1, 3)[members]
-    ids = flat[members]
-    order = np.argsort(ids, kind="stable")
-    cuts = np.flatnonzero(np.diff(ids[order])) + 1
-    boxes = []
-    for idx in np.split(order, cuts):  # one box per car (a handful per sweep)
-        boxes.append(oriented_box(pts_all[idx]))
-    return boxes
+    of that axis (rad), point count (:func:`~prc_slam.online.car.oriented_box`, in one kernel)."""
+    return oriented_boxes_of(instances.ravel(), xyz.reshape(-1, 3))
 
 
 @njit(cache=True, nogil=True)
