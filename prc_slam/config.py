@@ -30,8 +30,10 @@ class Config(BaseModel):
     classaware: ClassAwareConfig = Field(default_factory=ClassAwareConfig)
 
     @classmethod
-    def from_yaml(cls, path: str | Path) -> Config:
-        """Load a YAML file; missing keys take their defaults."""
+    def from_yaml(cls, path: str | Path, base: Config | None = None) -> Config:
+        """Load a YAML file; missing keys take their values in ``base`` (e.g. the command line's
+        preset), else their defaults. A key given replaces the base's value whole (``source_cell:
+        {}`` means no source cells)."""
         path = Path(path)
         try:
             data = yaml.safe_load(path.read_text()) or {}
@@ -39,6 +41,14 @@ class Config(BaseModel):
             raise ValueError(f"{path}: cannot read config: {exc}") from exc
         if not isinstance(data, dict):
             raise ValueError(f"{path}: config must be a mapping, got {type(data).__name__}")
+        if base is not None:
+            merged = base.model_dump()
+            for section, values in data.items():
+                if isinstance(values, dict) and isinstance(merged.get(section), dict):
+                    merged[section] = {**merged[section], **values}
+                else:
+                    merged[section] = values
+            data = merged
         return cls.model_validate(data)
 
     def to_yaml(self, path: str | Path) -> None:

@@ -14,6 +14,7 @@ never sampled away.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numba import njit
@@ -58,6 +59,12 @@ class FilterConfig(BaseModel):
     keep_one_sided: bool = Field(
         True, description="keep noise points that meet one of the two support conditions of eq. (4) (thin poles)"
     )
+    representative: Literal["random", "first"] = Field(
+        "random",
+        description="the point kept per cell, and the order of the points given to registration: random (a "
+        "pseudo-random point, hash of its index; handed over in that order so that KISS-ICP's voxels keep one too) "
+        "or first (the sensor's order)",
+    )
 
 
 @dataclass
@@ -68,6 +75,12 @@ class FilterResult:
     counts_in: dict[str, int]
     counts_kept: dict[str, int]
     source: np.ndarray | None = None  # mask of the points to register (a subset of ``keep``); None: all kept
+    order: np.ndarray | None = None  # indices of the kept points in registration order (None: input order)
+
+    @property
+    def kept_in_order(self) -> np.ndarray:
+        """Indices of the kept points, in the order to give them to registration."""
+        return np.flatnonzero(self.keep) if self.order is None else self.order
 
     @property
     def n_in(self) -> int:
@@ -78,12 +91,25 @@ class FilterResult:
         return int(self.keep.sum())
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _priority(i, random):
+    """Rank of point ``i`` among the points of its cell (the lowest is kept): its index, or the
+    splitmix64 hash of it (a pseudo-random point of the cell)."""
+    z = np.uint64(i)
+    if not random:
+        return z
+    z = z + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
 @njit(cache=True, nogil=True)
-def _filter_kernel(points, labels, drop, planar, sample, spare):
-    """One pass: drop by class (except ``spare`` points); keep the first point (input order) of
-    every occupied cell, per class, of the horizontal grid (cell ``planar[c]``) of the thinned
-    classes and of the 3-D grid (cell ``sample[c]``) of the sampled classes (open-addressing hash
-    of (class, cell), O(n)); count per class."""
+def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random):
+    """One pass: drop by class (except ``spare`` points); keep one point of every occupied cell,
+    per class, of the horizontal grid (cell ``planar[c]``) of the thinned classes and of the 3-D
+    grid (cell ``sample[c]``) of the sampled classes: the point of lowest :func:`_priority` of its
+    id (open-addressing hash of (class, cell), O(n)); count per class."""
     n = points.shape[0]
     size = 1
     while size < 2 * n + 2:
@@ -91,6 +117,8 @@ def _filter_kernel(points, labels, drop, planar, sample, spare):
     # one int64 key per (class, cell): 14 bits of class-and-plane flag, 3 x 16 bits of cell
     # coordinates (wrapped; two cells 65536 cells apart can share a key, never within a frame)
     keys = np.full(size, -1, np.int64)
+    best = np.empty(size, np.int64)
+    best_rank = np.empty(size, np.uint64)
     keep = np.zeros(n, np.bool_)
     n_in = np.zeros(256, np.int64)
     n_kept = np.zeros(256, np.int64)
@@ -106,7 +134,6 @@ def _filter_kernel(points, labels, drop, planar, sample, spare):
         n_in[c] += 1
         if spare[i]:
             keep[i] = True
-            n_kept[c] += 1
             continue
         if drop[c]:
             continue
@@ -119,12 +146,40 @@ def _filter_kernel(points, labels, drop, planar, sample, spare):
             h = ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791) ^ (np.int64(c) * 2654435761)) & (size - 1)
             while keys[h] >= 0 and keys[h] != key:
                 h = (h + 1) & (size - 1)
-            if keys[h] == key:
-                continue
-            keys[h] = key
+            rank = _priority(ids[i], random)
+            if keys[h] != key:
+                keys[h] = key
+                best[h] = i
+                best_rank[h] = rank
+            elif rank < best_rank[h]:
+                best[h] = i
+                best_rank[h] = rank
+            continue
         keep[i] = True
-        n_kept[c] += 1
+    for h in range(size):
+        if keys[h] >= 0:
+            keep[best[h]] = True
+    for i in range(n):
+        if keep[i]:
+            n_kept[labels[i]] += 1
     return keep, n_in, n_kept
+
+
+def registration_order(kept: np.ndarray) -> np.ndarray:
+    """The kept points' indices in a pseudo-random order (sorted by the hash :func:`_priority`):
+    KISS-ICP keeps the first point of each voxel it meets, so the order decides which point stands
+    for a voxel; in the sensor's order it is always the one the scan reached first, a
+    representative biased by the scan pattern."""
+    kept = np.asarray(kept, dtype=np.int64)
+    return kept[np.argsort(_priorities(kept))]
+
+
+@njit(cache=True, nogil=True)
+def _priorities(ids):
+    out = np.empty(len(ids), np.uint64)
+    for k in range(len(ids)):
+        out[k] = _priority(ids[k], True)
+    return out
 
 
 def filter_points(
@@ -166,7 +221,8 @@ def filter_points(
         if np.shape(one_sided) != (len(points),):
             raise ValueError(f"one_sided has shape {np.shape(one_sided)} for {len(points)} points")
         spare = np.asarray(one_sided, dtype=bool) & drop[labels]  # spared from dropping only
-    keep, n_in, n_kept = _filter_kernel(points, labels, drop, planar, sample, spare)
+    random = config.representative == "random"
+    keep, n_in, n_kept = _filter_kernel(points, np.arange(len(points)), labels, drop, planar, sample, spare, random)
     source = None
     if config.source_cell or config.source_exclude:
         s_drop = np.zeros(256, dtype=bool)
@@ -177,13 +233,14 @@ def filter_points(
             c = _code(name, "source_cell", size)
             (s_planar if thin[c] else s_sample)[c] = size
         idx = np.flatnonzero(keep)
-        chosen, _, _ = _filter_kernel(points[idx], labels[idx], s_drop, s_planar, s_sample, spare[idx])
+        chosen, _, _ = _filter_kernel(points[idx], idx, labels[idx], s_drop, s_planar, s_sample, spare[idx], random)
         source = np.zeros(len(points), dtype=bool)
         source[idx[chosen]] = True
     present = np.flatnonzero(n_in)
     counts_in = {L.CODE_TO_NAME.get(int(c), f"code_{c}"): int(n_in[c]) for c in present}
     counts_kept = {L.CODE_TO_NAME.get(int(c), f"code_{c}"): int(n_kept[c]) for c in present}
-    return FilterResult(keep, counts_in, counts_kept, source)
+    order = registration_order(np.flatnonzero(keep)) if random else None
+    return FilterResult(keep, counts_in, counts_kept, source, order)
 
 
 def _code(name: str, field: str, size: float) -> int:

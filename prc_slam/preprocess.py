@@ -31,13 +31,16 @@ class Preprocessed:
     Attributes
     ----------
     points : ndarray of float32, shape (K, 3)
-        The kept points, in input order.
+        The kept points, in the order to register them (``order``).
     timestamps : ndarray of float64, shape (K,) or None
         Their times, when the input had times.
     labels : ndarray of uint8, shape (K,)
         Their PRC labels.
     keep : ndarray of bool, shape (N,)
         Which input points were kept.
+    order : ndarray of int64, shape (K,)
+        Input index of each kept point: input order with the filter's ``representative="first"``,
+        else pseudo-random (KISS-ICP keeps the first point of each voxel it meets).
     point_labels : ndarray of uint8, shape (N,)
         The PRC label of every input point, in input order (0 for non-finite input points).
     scan : Scan
@@ -48,6 +51,7 @@ class Preprocessed:
     timestamps: np.ndarray | None
     labels: np.ndarray
     keep: np.ndarray
+    order: np.ndarray
     point_labels: np.ndarray
     scan: Scan
 
@@ -126,11 +130,13 @@ class Preprocessor:
         times = scan.point_times()
         res = filter_points(pts, point_labels, self.config.filter, scan.per_point(one_sided))
         keep = res.keep
+        order = res.kept_in_order  # the order KISS-ICP should meet them in (FilterConfig.representative)
         return Preprocessed(
-            points=pts[keep],
-            timestamps=None if times is None else np.asarray(times)[keep],
-            labels=point_labels[keep],
+            points=pts[order],
+            timestamps=None if times is None else np.asarray(times)[order],
+            labels=point_labels[order],
             keep=keep,
+            order=order,
             point_labels=point_labels,
             scan=scan,
         )

@@ -61,8 +61,9 @@ def health_section(result: CompareResult, metrics: dict[str, Any]) -> list[str]:
         ]
         for pair, d in disagreements.items():
             lines.append(
-                f"- {pair}: from frame {d['first_frame']}, {d['frames']} frames, up to {_fmt(d['max_difference_m'])} m / "
-                f"{_fmt(d['max_difference_deg'])} deg; suspect: {', '.join(d['suspects']) or '-'}"
+                f"- {pair}: from frame {d['first_frame']}, {d['frames']} frames, up to "
+                f"{_fmt(d['max_difference_m'])} m / {_fmt(d['max_difference_deg'])} deg; "
+                f"suspect: {', '.join(d['suspects']) or '-'}"
             )
     for name, why in metrics.get("skipped_variants", {}).items():
         lines.append(f"- `{name}` skipped: {why}")

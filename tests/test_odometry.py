@@ -32,8 +32,9 @@ def short_drive(tmp_path_factory):
 def test_filter_drops_noise_thins_ground_keeps_the_rest():
     pts = np.array([[0.1, 0.1, 0], [0.5, 0.5, 0], [1.5, 0.2, 0], [0.2, 0.3, 1], [5, 5, 5], [6, 6, 6]], float)
     lab = np.array([L.GROUND, L.GROUND, L.GROUND, L.BUILDING, L.NOISE, L.NOISE], np.uint8)
-    res = filter_points(pts, lab, FilterConfig(cell=1.0))
+    res = filter_points(pts, lab, FilterConfig(cell=1.0, representative="first"))
     assert res.keep.tolist() == [True, False, True, True, False, False]  # first ground point per 1 m cell
+    assert res.kept_in_order.tolist() == [0, 2, 3]  # in input order
     assert res.counts_in == {"ground": 3, "building": 1, "noise": 2}
     assert res.counts_kept == {"ground": 2, "building": 1, "noise": 0}
     spared = filter_points(pts, lab, FilterConfig(), one_sided=np.array([0, 0, 0, 0, 1, 0], bool))
@@ -60,7 +61,7 @@ def test_filter_samples_classes_on_3d_cells_and_chooses_the_source():
     lab = np.array([L.BUILDING] * 3 + [L.VEGETATION] + [L.GROUND] * 3 + [L.NOISE], np.uint8)
     one = np.zeros(8, bool)
     one[7] = True
-    cfg = FilterConfig(cell=3.0, sample={}, sample_other=0.5, source_cell={}, source_exclude=[])
+    cfg = FilterConfig(cell=3.0, sample={}, sample_other=0.5, source_cell={}, source_exclude=[], representative="first")
     res = filter_points(pts, lab, cfg, one)
     assert res.keep.tolist() == [True, False, True, True, True, False, True, True] and res.source is None
     src = filter_points(
@@ -71,6 +72,51 @@ def test_filter_samples_classes_on_3d_cells_and_chooses_the_source():
     assert not (src.source & ~src.keep).any()
     with pytest.raises(ValueError, match="unknown class 'leaves'"):
         filter_points(pts, lab, FilterConfig(sample={"leaves": 1.0}))
+
+
+def _splitmix64(i: int) -> int:
+    m = (1 << 64) - 1
+    z = (i + 0x9E3779B97F4A7C15) & m
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & m
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & m
+    return z ^ (z >> 31)
+
+
+def test_filter_random_representative_is_the_lowest_hash_of_each_cell():
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-2, 2, (600, 3))
+    lab = rng.choice(np.array([L.GROUND, L.BUILDING, L.NOISE], np.uint8), 600)
+    cfg = FilterConfig(cell=1.0, sample={}, sample_other=1.0, source_cell={})
+    assert cfg.representative == "random"  # the default
+    res = filter_points(pts, lab, cfg)
+    best: dict[tuple, int] = {}
+    for i, (p, c) in enumerate(zip(pts, lab, strict=True)):
+        if c == L.NOISE:
+            continue
+        cell = (int(c), *np.floor(p[:2]).astype(int), 0 if c == L.GROUND else int(np.floor(p[2])))
+        if cell not in best or _splitmix64(i) < _splitmix64(best[cell]):
+            best[cell] = i
+    assert np.flatnonzero(res.keep).tolist() == sorted(best.values())
+    order = res.kept_in_order  # every kept point once, by increasing hash
+    assert sorted(order.tolist()) == sorted(best.values())
+    hashes = [_splitmix64(int(i)) for i in order]
+    assert hashes == sorted(hashes)
+    # not the sensor's first point: on a line of 10 points per cell, the kept one moves around
+    line = np.c_[np.arange(1000) * 0.1 + 0.05, np.zeros(1000), np.zeros(1000)]
+    kept = np.flatnonzero(filter_points(line, np.full(1000, L.GROUND, np.uint8), cfg).keep)
+    assert len(kept) == 100 and len(set((kept % 10).tolist())) == 10
+
+
+def test_partial_yaml_config_changes_only_its_keys(tmp_path):
+    base = Config(prc=PRCConfig.preset("multibeam"))
+    path = tmp_path / "c.yaml"
+    path.write_text("filter: {cell: 1.0}\n")
+    cfg = Config.from_yaml(path, base)
+    assert cfg.prc == base.prc and cfg.filter.cell == 1.0
+    assert cfg.filter.source_cell == base.filter.source_cell
+    path.write_text("filter: {source_cell: {}}\n")  # a key given replaces the base's value whole
+    assert Config.from_yaml(path, base).filter.source_cell == {}
+    assert Config.from_yaml(path).prc == Config().prc  # without a base: the defaults
 
 
 def test_kiss_config_ignores_environment(monkeypatch):

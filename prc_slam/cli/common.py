@@ -236,9 +236,8 @@ def run_config(preset: Preset, config_path: Path | None, mode: Mode = Mode.urban
     from prc_slam.config import Config
     from prc_slam.odometry.classaware import ClassAwareConfig
 
-    if config_path is not None:
-        return Config.from_yaml(config_path)
-    return Config(prc=prc_config(mode, preset, None, None), classaware=ClassAwareConfig.for_mode(mode.value))
+    base = Config(prc=prc_config(mode, preset, None, None), classaware=ClassAwareConfig.for_mode(mode.value))
+    return base if config_path is None else Config.from_yaml(config_path, base)
 
 
 def input_options(

@@ -318,11 +318,10 @@ def _run_config(job: Any):
     from prc_slam.config import Config
     from prc_slam.odometry.classaware import ClassAwareConfig
 
-    if job.config is not None:
-        return Config.from_yaml(job.config)
-    return Config(
+    base = Config(
         prc=_prc_config(job.model_copy(update={"config": None})), classaware=ClassAwareConfig.for_mode(job.mode)
     )
+    return base if job.config is None else Config.from_yaml(job.config, base)
 
 
 def run_job(task: Task, out: Path) -> dict[str, Any]:

@@ -332,6 +332,7 @@ class OdometryVariants:
                 if name != "raw":
                     run.ms["filter"].append((time.perf_counter() - t0) * 1e3)
                 t0 = time.perf_counter()
+                sel = keep if res is None else res.kept_in_order  # PRC chooses what is registered, and in which order
                 extra = {}
                 if res is not None and res.source is not None:
                     source = res.source
@@ -339,10 +340,9 @@ class OdometryVariants:
                         # the class-aware odometry matches ground to ground only: it registers all
                         # of the kept ground (forest walk, 300 frames; README)
                         source = source | (keep & (codes == L.GROUND))
-                    extra["source"] = source[keep]  # PRC chooses what is registered
+                    extra["source"] = source[sel]
                 pose = run.odometry.register(
-                    pts[keep], None if t is None else t[keep], None if codes is None else codes[keep], frame_time,
-                    **extra,
+                    pts[sel], None if t is None else t[sel], None if codes is None else codes[sel], frame_time, **extra
                 )  # fmt: skip
                 run.ms["icp"].append((time.perf_counter() - t0) * 1e3)
             except Exception as exc:  # one variant's failure must not end the others
