@@ -121,8 +121,8 @@ def _classify_lines(
     t_prime = np.zeros(n_slots, np.bool_)
     sv_out = np.zeros(n_slots, np.float32)
     phi_out = np.zeros(n_slots, np.float32)
+    origin = np.zeros(3)
     for li in range(lines.shape[0]):  # scan lines are independent; each writes only its slots
-        origin = np.zeros(3)
         pts, sv, phi = K.line_statistics(xyz, valid, lines[li], origin, min_step, centred)
         n = pts.shape[0]
         if n == 0:

@@ -24,7 +24,6 @@ import numpy as np
 from numba import njit
 
 from prc_slam import labels as L
-from prc_slam.online import kernels as K
 from prc_slam.online.coarse import CoarseResult
 from prc_slam.scan import Scan
 
@@ -89,9 +88,9 @@ def single_mode(x, bandwidth):
 
 
 @njit(cache=True, nogil=True)
-def _potential_ground(codes, phi, first, run_len, phi_bw):
+def _potential_ground(codes, phi, first, run_len, phi_bw, srt, rank, cnt, tot):
     """Part (a) on the returns ``first..`` of one line: (start, end) of the potential-ground run
-    (end exclusive) or (-1, -1)."""
+    (end exclusive) or (-1, -1). ``srt, rank, cnt, tot``: scratch of :func:`_grow_single_mode`."""
     n = codes.shape[0]
     count = 0
     start = -1
@@ -112,7 +111,7 @@ def _potential_ground(codes, phi, first, run_len, phi_bw):
     end, block = start + run_len, 4 * run_len
     while True:
         stop = min(end_max, start + block)
-        end = grow_single_mode(phi, start, end, stop, phi_bw)
+        end = _grow_single_mode(phi, start, end, stop, phi_bw, srt, rank, cnt, tot)
         if end < stop or stop == end_max:
             return start, end
         block *= 4
@@ -175,16 +174,28 @@ def grow_single_mode(x, start, end, end_max, bandwidth):
     Fenwick trees (count and sum) over those ranks. Samples spanning at most one bandwidth
     need no search: every window then holds all of them, so both ends climb to their mean.
     """
+    n = max(0, end_max - start)
+    return _grow_single_mode(
+        x, start, end, end_max, bandwidth, np.empty(n), np.empty(n, np.int64), np.empty(n + 1), np.empty(n + 1)
+    )
+
+
+@njit(cache=True, nogil=True)
+def _grow_single_mode(x, start, end, end_max, bandwidth, srt_buf, rank, cnt_buf, tot_buf):
+    """:func:`grow_single_mode` with scratch arrays of at least ``end_max - start`` (+ 1) entries."""
     if end >= end_max:
         return end_max
     vals = x[start:end_max]
+    nv = vals.shape[0]
     order = np.argsort(vals)
-    srt = vals[order]
-    rank = np.empty(vals.shape[0], np.int64)
-    for i in range(vals.shape[0]):
+    srt = srt_buf[:nv]
+    for i in range(nv):
+        srt[i] = vals[order[i]]
         rank[order[i]] = i
-    cnt = np.zeros(vals.shape[0] + 1)
-    tot = np.zeros(vals.shape[0] + 1)
+    cnt = cnt_buf[: nv + 1]
+    tot = tot_buf[: nv + 1]
+    cnt[:] = 0.0
+    tot[:] = 0.0
     lo = np.inf
     hi = -np.inf
     for e in range(end_max - start):
@@ -233,15 +244,31 @@ def ground_lines(
     ground = np.zeros(n_slots, np.bool_)
     line_height = np.full(lines.shape[0], np.nan)
     pending = np.zeros(lines.shape[0], np.bool_)  # lines seen before z_d existed
+    width = lines.shape[1]
+    pts_buf = np.empty(width, np.int64)  # the returns of a line, their codes, line angles and heights
+    codes_buf = np.empty(width, slot_codes.dtype)
+    phi_buf = np.empty(width)
+    zs_buf = np.empty(width)
+    srt, rank, cnt, tot = np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1)
     for li in range(lines.shape[0]):
-        pts = K.line_returns(lines[li], valid)
-        m = pts.shape[0]
-        codes = slot_codes[pts]
-        phi = slot_phi[pts].astype(np.float64)
-        zs = xyz[pts, 2]
+        m = 0
+        for j in range(width):
+            s = lines[li, j]
+            if s < 0:
+                break
+            if valid[s]:
+                pts_buf[m] = s
+                codes_buf[m] = slot_codes[s]
+                phi_buf[m] = np.float64(slot_phi[s])
+                zs_buf[m] = xyz[s, 2]
+                m += 1
+        pts = pts_buf[:m]
+        codes = codes_buf[:m]
+        phi = phi_buf[:m]
+        zs = zs_buf[:m]
         first = 0
         while True:
-            a, b = _potential_ground(codes, phi, first, run_len, phi_bw)
+            a, b = _potential_ground(codes, phi, first, run_len, phi_bw, srt, rank, cnt, tot)
             if a < 0:
                 break
             zi = _lowest_mean(zs[a:b], 5)

@@ -92,9 +92,8 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0, centred=False):
     phi_hat = np.zeros(n)
     if n < 2:
         return pts, sv, phi_hat
-    prev = np.zeros(3)
-    d = np.zeros(3)
-    rb = np.zeros(3)
+    p0 = p1 = p2 = 0.0  # D_{k-1}
+    b0 = b1 = b2 = 0.0  # X_{k+1} - X_A
     cum = 0.0
     n_ra = 0.0  # |X_k - X_A|: the previous step's |X_{k+1} - X_A|
     nxt = 1
@@ -111,24 +110,23 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0, centred=False):
         while step > 0.0 and nxt < n - 1 and _dist2(xyz, pts[nxt], pts[k]) < step * step:  # (none < 0)
             nxt += 1
         b = nxt
-        ra0, ra1, ra2 = rb[0], rb[1], rb[2]  # X_k - X_A: the previous step's rb (unused at k = 0)
-        for c in range(3):
-            d[c] = xyz[pts[b], c] - xyz[pts[a], c]
-            rb[c] = xyz[pts[k + 1], c] - origin[c]
+        ra0, ra1, ra2 = b0, b1, b2  # X_k - X_A: the previous step's (unused at k = 0)
+        pb, pa, pk = pts[b], pts[a], pts[k + 1]
+        d0, d1, d2 = xyz[pb, 0] - xyz[pa, 0], xyz[pb, 1] - xyz[pa, 1], xyz[pb, 2] - xyz[pa, 2]
+        b0, b1, b2 = xyz[pk, 0] - origin[0], xyz[pk, 1] - origin[1], xyz[pk, 2] - origin[2]
         # the angles of _angle_deg, each norm taken once (the same values, fewer square roots)
-        n_d = _norm(d[0], d[1], d[2])
-        n_rb = _norm(rb[0], rb[1], rb[2])
-        v = _angle_of(d[0] * 0.0 + d[1] * 0.0 + d[2] * 1.0, n_d, 1.0)  # with the z axis
+        n_d = _norm(d0, d1, d2)
+        n_rb = _norm(b0, b1, b2)
+        v = _angle_of(d0 * 0.0 + d1 * 0.0 + d2 * 1.0, n_d, 1.0)  # with the z axis
         sign = 1.0
-        if k > 0 and (d[0] * prev[0] + d[1] * prev[1] + d[2] * prev[2]) < 0.0:
+        if k > 0 and (d0 * p0 + d1 * p1 + d2 * p2) < 0.0:
             sign = -1.0
         sv[k] = sign * v
         if k > 0:
-            cum += _angle_of(ra0 * rb[0] + ra1 * rb[1] + ra2 * rb[2], n_ra, n_rb)  # beam X_k -> X_{k+1}
-        phi_hat[k] = _angle_of(d[0] * rb[0] + d[1] * rb[1] + d[2] * rb[2], n_d, n_rb) + cum
+            cum += _angle_of(ra0 * b0 + ra1 * b1 + ra2 * b2, n_ra, n_rb)  # beam X_k -> X_{k+1}
+        phi_hat[k] = _angle_of(d0 * b0 + d1 * b1 + d2 * b2, n_d, n_rb) + cum
         n_ra = n_rb
-        for c in range(3):
-            prev[c] = d[c]
+        p0, p1, p2 = d0, d1, d2
     sv[n - 1] = sv[n - 2]
     phi_hat[n - 1] = phi_hat[n - 2]
     return pts, sv, phi_hat

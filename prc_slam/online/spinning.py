@@ -483,8 +483,8 @@ def grow_down(inst, valid, xyz, height, alt, floor, min_gate):
     first). Returns the grown instance image."""
     R, C = inst.shape
     out = inst.copy()
-    for c in range(C):
-        for r in range(R - 1, 0, -1):
+    for r in range(R - 1, 0, -1):  # each column top down (rows outside: image order in memory)
+        for c in range(C):
             k = out[r, c]
             if k == 0 or not valid[r, c]:
                 continue
@@ -809,25 +809,25 @@ def oriented_boxes(instances: np.ndarray, xyz: np.ndarray) -> list[dict]:
 def _curb_faces(xyz, valid, lines, zg, steep, ground_tol, min_rise, t_curb, max_step):
     """Curb-face returns along each column (see :func:`detect_curbs_spinning`)."""
     face = np.zeros(xyz.shape[0], np.bool_)
+    pts = np.empty(lines.shape[1], np.int64)
+    rho = np.empty(lines.shape[1])  # horizontal distance of each return of the line
     for li in range(lines.shape[0]):
         line = lines[li]
         n = 0
-        pts = np.empty(line.shape[0], np.int64)
         for j in range(line.shape[0]):
             s = line[j]
             if s < 0:
                 break
             if valid[s]:
                 pts[n] = s
+                rho[n] = np.sqrt(xyz[s, 0] ** 2 + xyz[s, 1] ** 2)
                 n += 1
         j = 1
         while j < n:
             a, k = pts[j - 1], pts[j]
             dz = xyz[k, 2] - xyz[a, 2]
-            rho_a = np.sqrt(xyz[a, 0] ** 2 + xyz[a, 1] ** 2)
-            rho_k = np.sqrt(xyz[k, 0] ** 2 + xyz[k, 1] ** 2)
             # a steep step up from a return at the local ground level starts a possible face
-            if not (dz > 0 and dz > steep * abs(rho_k - rho_a) and abs(xyz[a, 2] - zg[a]) < ground_tol):
+            if not (dz > 0 and dz > steep * abs(rho[j] - rho[j - 1]) and abs(xyz[a, 2] - zg[a]) < ground_tol):
                 j += 1
                 continue
             base = xyz[a, 2]
@@ -836,9 +836,7 @@ def _curb_faces(xyz, valid, lines, zg, steep, ground_tol, min_rise, t_curb, max_
                 b = pts[e + 1]
                 q = pts[e]
                 dzb = xyz[b, 2] - xyz[q, 2]
-                rho_b = np.sqrt(xyz[b, 0] ** 2 + xyz[b, 1] ** 2)
-                rho_q = np.sqrt(xyz[q, 0] ** 2 + xyz[q, 1] ** 2)
-                if dzb > 0 and dzb > steep * abs(rho_b - rho_q) and xyz[b, 2] - base <= t_curb + 0.05:
+                if dzb > 0 and dzb > steep * abs(rho[e + 1] - rho[e]) and xyz[b, 2] - base <= t_curb + 0.05:
                     e += 1
                 else:
                     break
@@ -848,9 +846,7 @@ def _curb_faces(xyz, valid, lines, zg, steep, ground_tol, min_rise, t_curb, max_
             if e + 1 < n:
                 b = pts[e + 1]
                 q = pts[e]
-                rho_b = np.sqrt(xyz[b, 0] ** 2 + xyz[b, 1] ** 2)
-                rho_q = np.sqrt(xyz[q, 0] ** 2 + xyz[q, 1] ** 2)
-                flat = abs(xyz[b, 2] - xyz[q, 2]) <= max_step + 0.2 * abs(rho_b - rho_q)
+                flat = abs(xyz[b, 2] - xyz[q, 2]) <= max_step + 0.2 * abs(rho[e + 1] - rho[e])
             if min_rise <= rise <= t_curb and flat:
                 for q in range(j, e + 1):
                     face[pts[q]] = True
