@@ -240,13 +240,15 @@ def region_stats(regions, z, n, by_column):
 
 def _polylines(regions: np.ndarray, ok: np.ndarray, line_index: np.ndarray, xyz: np.ndarray) -> list[np.ndarray]:
     """One polyline per accepted region: the mean point of each of its scan lines, in line order."""
-    members = ok[regions] & (regions > 0)
-    if not members.any():
+    flat = regions.ravel()
+    members = np.flatnonzero(flat)  # labelled slots in image order, then those of accepted regions
+    members = members[ok[flat[members]]]
+    if not len(members):
         return []
-    r = regions[members].astype(np.int64)
-    key = r * (1 << 20) + line_index[members]
+    r = flat[members].astype(np.int64)
+    key = r * (1 << 20) + line_index[np.unravel_index(members, regions.shape)]
     uniq, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
-    pts = xyz[members].astype(np.float64)
+    pts = xyz.reshape(-1, 3)[members].astype(np.float64)
     mean = np.stack([np.bincount(inv, weights=pts[:, c]) for c in range(3)], axis=1) / counts[:, None]
     owner = uniq >> 20
     cuts = np.flatnonzero(np.diff(owner)) + 1

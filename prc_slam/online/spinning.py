@@ -220,8 +220,8 @@ def outline_tops(seg, n, valid, high, xyz, rng, alt, min_gate, gate_factor, max_
     R, C = seg.shape
     high_touch = np.zeros(n + 1, np.int64)
     tops = np.zeros(n + 1, np.int64)
-    for c in range(C):
-        for r in range(R):
+    for r in range(R):  # image order in memory (each column is read upwards from every slot)
+        for c in range(C):
             k = seg[r, c]
             if k == 0:
                 continue
@@ -560,13 +560,13 @@ def grazing_links(seg, valid, xyz, min_rise, max_run):
     no lower, links the two: a car's body and its roof or bonnet, which a beam meets at a grazing
     angle, metres farther out. Rising terrain has no vertical face and links nothing.
 
-    Returns ``(low, up)`` segment ids, one entry per linking column."""
+    Returns ``(low, up)`` segment ids, one entry per linking column (in image order)."""
     R, C = seg.shape
     low = np.empty(R * C, np.int64)
     up = np.empty(R * C, np.int64)
     m = 0
-    for c in range(C):
-        for r in range(R):
+    for r in range(R):  # image order in memory (each column is read upwards from every slot)
+        for c in range(C):
             k = seg[r, c]
             if k == 0:
                 continue
@@ -695,7 +695,7 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
     groups, gid[multi] = np.unique(comp[multi], return_inverse=True)
     gid[multi] += 1
     g = len(groups)
-    seg_g = gid[seg_o].astype(np.int32)
+    seg_g = gid.astype(np.int32)[seg_o]
     ht_g, tops_g = outline_tops(
         seg_g, g, valid, high, xyz, rng, alt, p.min_gate, p.gate_factor, p.max_gate, height, p.top_floor
     )
@@ -708,7 +708,7 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
     gnum = np.zeros(g + 1, np.int64)
     gnum[ok_g] = np.arange(1, int(ok_g.sum()) + 1) + int(alone.sum())
     final[take_g] = gnum[gid[take_g]]
-    return final[seg_o].astype(np.int32), int(ok_g[1:].sum())
+    return final.astype(np.int32)[seg_o], int(ok_g[1:].sum())
 
 
 @njit(cache=True, nogil=True)
