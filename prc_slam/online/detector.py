@@ -124,7 +124,7 @@ class OnlineDetector:
         curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
         zg = None
         if spinning and line_heights is not None:  # each slot's ground: the last ground return below it
-            zg = local_ground(coarse.lines, ground.ravel(), scan.slot_xyz()[..., 2].ravel(), line_heights)
+            zg = local_ground(coarse.lines, ground.ravel(), scan.slot_xyz64()[:, 2], line_heights)
         if zg is not None and self.spinning_curbs:
             face, lines_sp = detect_curbs_spinning(scan, coarse.lines, ground, line_heights, zg=zg)
             curbs.mask |= face

@@ -544,7 +544,7 @@ def local_ground(lines: np.ndarray, ground: np.ndarray, z: np.ndarray, line_heig
     return _local_ground(
         np.ascontiguousarray(lines, dtype=np.int64),
         np.ascontiguousarray(ground, dtype=np.bool_),
-        np.ascontiguousarray(z, dtype=np.float64),
+        np.asarray(z, dtype=np.float64),  # a strided view is fine (e.g. the z column of slot_xyz64)
         np.ascontiguousarray(line_height, dtype=np.float64),
     )
 
