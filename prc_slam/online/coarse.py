@@ -21,6 +21,7 @@ from numba import njit
 
 from prc_slam import labels as L
 from prc_slam.online import kernels as K
+from prc_slam.online.threads import in_threads
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
 
 PROFILER_START_RADIUS = 10.0  # m, see scan_lines
@@ -124,15 +125,12 @@ def shared_first(scan: Scan) -> int:
 
 @njit(cache=True, nogil=True)
 def _classify_lines(
-    xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th, min_step, centred, shared, with_tp
-):
-    n_slots = xyz.shape[0]
-    codes = np.zeros(n_slots, np.uint8)
-    t_prime = np.zeros(n_slots, np.bool_)
-    sv_out = np.zeros(n_slots, np.float32)
-    phi_out = np.zeros(n_slots, np.float32)
+    codes, t_prime, sv_out, phi_out, lo, hi,
+    xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th, min_step, centred, shared, with_tp,
+):  # fmt: skip
+    """The coarse classes of lines ``lo..hi - 1`` written into ``codes, t_prime, sv_out, phi_out``."""
     origin = np.zeros(3)
-    for li in range(lines.shape[0]):  # scan lines are independent; each writes only its slots
+    for li in range(lo, hi):  # scan lines are independent; each writes only its slots
         pts, sv, phi = K.line_statistics(xyz, valid, lines[li], origin, min_step, centred)
         n = pts.shape[0]
         if n == 0:
@@ -172,7 +170,6 @@ def _classify_lines(
             else:
                 codes[s] = 69 if vertical[j] else 68
                 j += 1
-    return codes, t_prime, sv_out, phi_out
 
 
 @dataclass
@@ -198,13 +195,19 @@ def coarse_classify(scan: Scan, params: CoarseParams | None = None, t_prime: boo
     xyz = scan.slot_xyz64()
     valid = scan.valid.ravel()
     lines = scan_lines(scan)
-    codes, tp, sv, phi = _classify_lines(
+    n_slots = xyz.shape[0]
+    codes = np.zeros(n_slots, np.uint8)
+    tp = np.zeros(n_slots, np.bool_)
+    sv = np.zeros(n_slots, np.float32)
+    phi = np.zeros(n_slots, np.float32)
+    args = (
         xyz, valid, lines,
         np.array(p.veg_means, float), p.veg_sigma, p.veg_slow, p.veg_fast, p.veg_h,
         p.hv_sigma, p.hv_h,
         np.array(p.tp_means, float), p.tp_sigma, p.tp_regular, p.tp_fast, p.tp_h,
         p.min_step, p.centred, shared_first(scan), t_prime,
     )  # fmt: skip
+    in_threads(lambda lo, hi: _classify_lines(codes, tp, sv, phi, lo, hi, *args), len(lines))
     shape = scan.shape
     assert L.VEGETATION == 5 and L.HORIZONTAL == 68 and L.VERTICAL == 69  # codes used by the kernel
     tp = tp.reshape(shape) if t_prime else None

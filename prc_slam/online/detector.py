@@ -28,6 +28,7 @@ from prc_slam.online.spinning import (
     detect_curbs_spinning,
     local_ground,
 )
+from prc_slam.online.threads import concurrently
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
 
 
@@ -121,19 +122,25 @@ class OnlineDetector:
             ground, line_heights, heights = column_ground(scan, coarse.lines)
             if self.per_line_height:
                 heights = line_heights
-        curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
-        zg = None
-        if spinning and line_heights is not None:  # each slot's ground: the last ground return below it
-            zg = local_ground(coarse.lines, ground.ravel(), scan.slot_xyz64()[:, 2], line_heights)
-        if zg is not None and self.spinning_curbs:
-            face, lines_sp = detect_curbs_spinning(scan, coarse.lines, ground, line_heights, zg=zg)
-            curbs.mask |= face
-            curbs.polylines = curbs.polylines + lines_sp
         if spinning and line_heights is not None:
-            cars = detect_cars_spinning(
-                scan, ground, coarse.lines, line_heights, coarse.codes == L.VEGETATION, self.spinning_params, zg
+            lines, p = coarse.lines, self.spinning_params
+
+            def spinning_path() -> tuple:
+                # each slot's ground: the last ground return below it
+                zg = local_ground(lines, ground.ravel(), scan.slot_xyz64()[:, 2], line_heights)
+                faces = detect_curbs_spinning(scan, lines, ground, line_heights, zg=zg) if self.spinning_curbs else None
+                veg = coarse.codes == L.VEGETATION
+                return faces, detect_cars_spinning(scan, ground, lines, line_heights, veg, p, zg)
+
+            # Sec. 6's curbs beside the spinning path, which does not use them (another core if free)
+            curbs, (faces, cars) = concurrently(
+                lambda: detect_curbs(scan, coarse, ground, heights, self.curb_params), spinning_path
             )
+            if faces is not None:
+                curbs.mask |= faces[0]
+                curbs.polylines = curbs.polylines + faces[1]
         else:
+            curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
             cars = detect_cars(scan, coarse, heights, curbs.mask, self.car_params)
         self.last_cars = cars
         labels = coarse.codes.copy()

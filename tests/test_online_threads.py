@@ -1,0 +1,77 @@
+"""Chunked threads for the online kernels: every item once, errors raised in the caller, and the
+detector's outputs the same with one thread as with several."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from prc_slam.online.threads import concurrently, in_threads
+
+
+@pytest.fixture(params=[1, 2])
+def threads(request):
+    old = numba.get_num_threads()
+    numba.set_num_threads(min(request.param, numba.config.NUMBA_NUM_THREADS))
+    yield numba.get_num_threads()
+    numba.set_num_threads(old)
+
+
+@pytest.mark.parametrize("n", [0, 1, 255, 256, 513, 2048])
+def test_in_threads_covers_every_item_once(threads, n):
+    seen = np.zeros(n, np.int64)
+    chunks = []
+
+    def work(lo, hi):
+        chunks.append((lo, hi))
+        seen[lo:hi] += 1
+
+    in_threads(work, n, min_chunk=256)
+    assert (seen == 1).all()
+    assert len(chunks) == max(1, min(threads, n // 256))
+
+
+def test_errors_reach_the_caller(threads):
+    def work(lo, hi):
+        if lo > 0 or threads == 1:
+            raise ValueError("bad chunk")
+
+    with pytest.raises(ValueError, match="bad chunk"):
+        in_threads(work, 1024, min_chunk=256)
+    with pytest.raises(KeyError):
+        concurrently(lambda: {}["missing"], lambda: 1)
+    with pytest.raises(ZeroDivisionError):
+        concurrently(lambda: 1, lambda: 1 / 0)
+    assert concurrently(lambda: "a", lambda: "b") == ("a", "b")
+
+
+def test_detector_outputs_do_not_depend_on_threads(hdl64_scans):
+    from prc_slam.online import OnlineDetector
+
+    out = {}
+    old = numba.get_num_threads()
+    try:
+        for t in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(t)
+            det = OnlineDetector()
+            out[t] = [det.process(s) for s in hdl64_scans]
+    finally:
+        numba.set_num_threads(old)
+    a, b = out.values()
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x.labels, y.labels)
+        np.testing.assert_array_equal(x.car_instances, y.car_instances)
+        assert x.car_boxes == y.car_boxes
+        assert len(x.curb_polylines) == len(y.curb_polylines)
+        for p, q in zip(x.curb_polylines, y.curb_polylines, strict=True):
+            np.testing.assert_array_equal(p, q)
+
+
+@pytest.fixture(scope="module")
+def hdl64_scans():
+    from data_tools.sim.simulator import SimConfig, Simulator
+    from prc_slam.scan import Scan
+
+    sim = Simulator(SimConfig(scene="urban", sensor="hdl64", frames=3))
+    return [Scan(sim.frame(i).ranges, sim.sensor.model) for i in range(3)]
