@@ -115,10 +115,10 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random):
     while size < 2 * n + 2:
         size *= 2
     # one int64 key per (class, cell): 14 bits of class-and-plane flag, 3 x 16 bits of cell
-    # coordinates (wrapped; two cells 65536 cells apart can share a key, never within a frame)
-    keys = np.full(size, -1, np.int64)
-    best = np.empty(size, np.int64)
-    best_rank = np.empty(size, np.uint64)
+    # coordinates (wrapped; two cells 65536 cells apart can share a key, never within a frame),
+    # and beside it (same cache line) the index of the cell's point of lowest priority so far
+    table = np.empty(2 * size, np.int64)
+    table[0::2] = -1
     keep = np.zeros(n, np.bool_)
     n_in = np.zeros(256, np.int64)
     n_kept = np.zeros(256, np.int64)
@@ -144,21 +144,18 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random):
             cz = np.int64(0) if inv_planar[c] > 0 else np.int64(np.floor(points[i, 2] * inv)) & 0xFFFF
             key = (np.int64(c) << 48) | (cx << 32) | (cy << 16) | cz
             h = ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791) ^ (np.int64(c) * 2654435761)) & (size - 1)
-            while keys[h] >= 0 and keys[h] != key:
+            while table[2 * h] >= 0 and table[2 * h] != key:
                 h = (h + 1) & (size - 1)
-            rank = _priority(ids[i], random)
-            if keys[h] != key:
-                keys[h] = key
-                best[h] = i
-                best_rank[h] = rank
-            elif rank < best_rank[h]:
-                best[h] = i
-                best_rank[h] = rank
+            if table[2 * h] != key:
+                table[2 * h] = key
+                table[2 * h + 1] = i
+                keep[i] = True
+            elif random and _priority(ids[i], True) < _priority(ids[table[2 * h + 1]], True):
+                keep[table[2 * h + 1]] = False
+                table[2 * h + 1] = i
+                keep[i] = True
             continue
         keep[i] = True
-    for h in range(size):
-        if keys[h] >= 0:
-            keep[best[h]] = True
     for i in range(n):
         if keep[i]:
             n_kept[labels[i]] += 1
@@ -166,19 +163,20 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random):
 
 
 def registration_order(kept: np.ndarray) -> np.ndarray:
-    """The kept points' indices in a pseudo-random order (sorted by the hash :func:`_priority`):
-    KISS-ICP keeps the first point of each voxel it meets, so the order decides which point stands
-    for a voxel; in the sensor's order it is always the one the scan reached first, a
+    """The kept points' indices in a pseudo-random order: by the top 16 bits of their
+    :func:`_priority` hash (numpy's stable sort of 16-bit keys is a radix sort, O(k); ties keep
+    input order). KISS-ICP keeps the first point of each voxel it meets, so the order decides which
+    point stands for a voxel; in the sensor's order it is always the one the scan reached first, a
     representative biased by the scan pattern."""
     kept = np.asarray(kept, dtype=np.int64)
-    return kept[np.argsort(_priorities(kept))]
+    return kept[np.argsort(_hash16(kept), kind="stable")]
 
 
 @njit(cache=True, nogil=True)
-def _priorities(ids):
-    out = np.empty(len(ids), np.uint64)
+def _hash16(ids):
+    out = np.empty(len(ids), np.uint16)
     for k in range(len(ids)):
-        out[k] = _priority(ids[k], True)
+        out[k] = np.uint16(_priority(ids[k], True) >> np.uint64(48))
     return out
 
 
