@@ -19,10 +19,11 @@ import numpy as np
 from prc_slam import labels as L
 from prc_slam.online.car import CarParams, detect_cars
 from prc_slam.online.coarse import CoarseParams, CoarseResult, coarse_classify
-from prc_slam.online.curb import CurbParams, detect_curbs
+from prc_slam.online.curb import CurbParams, CurbResult, detect_curbs
 from prc_slam.online.ground import GroundDetector, GroundParams
 from prc_slam.online.spinning import (
     SpinningCarParams,
+    SpinningCars,
     column_ground,
     detect_cars_spinning,
     detect_curbs_spinning,
@@ -123,22 +124,23 @@ class OnlineDetector:
             if self.per_line_height:
                 heights = line_heights
         if spinning and line_heights is not None:
-            lines, p = coarse.lines, self.spinning_params
+            lines = coarse.lines
+            # each slot's ground: the last ground return below it
+            zg = local_ground(lines, ground.ravel(), scan.slot_xyz64()[:, 2], line_heights)
 
-            def spinning_path() -> tuple:
-                # each slot's ground: the last ground return below it
-                zg = local_ground(lines, ground.ravel(), scan.slot_xyz64()[:, 2], line_heights)
-                faces = detect_curbs_spinning(scan, lines, ground, line_heights, zg=zg) if self.spinning_curbs else None
+            def all_curbs() -> CurbResult:  # Sec. 6, and the curb faces of a spinning sensor
+                curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
+                if self.spinning_curbs:
+                    face, polylines = detect_curbs_spinning(scan, lines, ground, line_heights, zg=zg)
+                    curbs.mask |= face
+                    curbs.polylines = curbs.polylines + polylines
+                return curbs
+
+            def spinning_cars() -> SpinningCars:
                 veg = coarse.codes == L.VEGETATION
-                return faces, detect_cars_spinning(scan, ground, lines, line_heights, veg, p, zg)
+                return detect_cars_spinning(scan, ground, lines, line_heights, veg, self.spinning_params, zg)
 
-            # Sec. 6's curbs beside the spinning path, which does not use them (another core if free)
-            curbs, (faces, cars) = concurrently(
-                lambda: detect_curbs(scan, coarse, ground, heights, self.curb_params), spinning_path
-            )
-            if faces is not None:
-                curbs.mask |= faces[0]
-                curbs.polylines = curbs.polylines + faces[1]
+            curbs, cars = concurrently(all_curbs, spinning_cars)  # the cars do not use the curbs
         else:
             curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
             cars = detect_cars(scan, coarse, heights, curbs.mask, self.car_params)
