@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from prc_slam.online import kernels as K
 from prc_slam.online.car import oriented_box, oriented_boxes_of
 from prc_slam.online.curb import group_medians, possible_curbs, region_stats
+from prc_slam.online.ground import _lowest_mean
 from prc_slam.online.spinning import _heights, segment_tops
 
 SETTINGS = settings(max_examples=60, deadline=None)
@@ -215,3 +216,14 @@ def test_boxes_in_one_kernel_are_oriented_box(seed, dtype, on_a_line):
             g["center"] + g["size"] + [g["yaw"]], r["center"] + r["size"] + [r["yaw"]], atol=1e-9
         )
     assert oriented_boxes_of(np.zeros(3, np.int64), np.zeros((3, 3))) == []
+
+
+@SETTINGS
+@given(st.lists(st.sampled_from([-1.9, -1.75, -1.7, -0.0, 0.0, 2.5]), min_size=1, max_size=40), st.integers(1, 8))
+def test_lowest_mean_is_the_sorted_definition(z, k):
+    z = np.array(z) + np.repeat(np.random.default_rng(len(z)).normal(0, 0.01, 1), len(z))
+    m = min(k, len(z))
+    total = 0.0
+    for v in np.sort(z)[:m]:  # summed from the lowest up, as numba's mean (numpy's sum is pairwise)
+        total += v
+    assert _lowest_mean(z, k) == total / m

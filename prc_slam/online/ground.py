@@ -215,9 +215,24 @@ def _grow_single_mode(x, start, end, end_max, bandwidth, srt_buf, rank, cnt_buf,
 
 @njit(cache=True, nogil=True)
 def _lowest_mean(z, k):
-    s = np.sort(z)
-    m = min(k, s.shape[0])
-    return s[:m].mean()
+    """The mean of the ``k`` lowest of ``z`` (all if fewer), summed from the lowest up: the value
+    of ``np.sort(z)[:k].mean()``, without sorting the rest."""
+    m = min(k, z.shape[0])
+    low = np.empty(m)
+    n = 0
+    for v in z:  # insertion into the m lowest so far, ascending
+        if n == m and not v < low[m - 1]:
+            continue
+        j = min(n, m - 1)
+        while j > 0 and v < low[j - 1]:
+            low[j] = low[j - 1]
+            j -= 1
+        low[j] = v
+        n = min(n + 1, m)
+    s = 0.0
+    for j in range(m):
+        s += low[j]
+    return s / m
 
 
 @njit(cache=True, nogil=True)
