@@ -105,15 +105,15 @@ def _priority(i, random):
 
 
 @njit(cache=True, nogil=True)
-def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random):
+def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random, size):
     """One pass: drop by class (except ``spare`` points); keep one point of every occupied cell,
     per class, of the horizontal grid (cell ``planar[c]``) of the thinned classes and of the 3-D
     grid (cell ``sample[c]``) of the sampled classes: the point of lowest :func:`_priority` of its
-    id (open-addressing hash of (class, cell), O(n)); count per class."""
+    id (open-addressing hash of (class, cell) with ``size`` slots, a power of two, O(n)); count
+    per class. Returns ``None`` for ``keep`` when more than half the slots fill (call again with
+    a larger ``size``)."""
     n = points.shape[0]
-    size = 1
-    while size < 2 * n + 2:
-        size *= 2
+    n_cells = 0
     # one int64 key per (class, cell): 14 bits of class-and-plane flag, 3 x 16 bits of cell
     # coordinates (wrapped; two cells 65536 cells apart can share a key, never within a frame),
     # and beside it (same cache line) the index of the cell's point of lowest priority so far
@@ -147,6 +147,9 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random):
             while table[2 * h] >= 0 and table[2 * h] != key:
                 h = (h + 1) & (size - 1)
             if table[2 * h] != key:
+                n_cells += 1
+                if 2 * n_cells > size:
+                    return None, n_in, n_kept
                 table[2 * h] = key
                 table[2 * h + 1] = i
                 keep[i] = True
@@ -160,6 +163,18 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random):
         if keep[i]:
             n_kept[labels[i]] += 1
     return keep, n_in, n_kept
+
+
+def _filter(points, ids, labels, drop, planar, sample, spare, random):
+    """:func:`_filter_kernel` with a table for a quarter of the points as cells (a table for all
+    of them, 4 MB for a 64-beam sweep, missed the cache on every look-up), four times larger while
+    it fills up."""
+    size = 1 << max(10, int(np.ceil(np.log2(len(points) // 2 + 2))))
+    while True:
+        keep, n_in, n_kept = _filter_kernel(points, ids, labels, drop, planar, sample, spare, random, size)
+        if keep is not None:
+            return keep, n_in, n_kept
+        size *= 4
 
 
 def registration_order(kept: np.ndarray) -> np.ndarray:
@@ -220,7 +235,7 @@ def filter_points(
             raise ValueError(f"one_sided has shape {np.shape(one_sided)} for {len(points)} points")
         spare = np.asarray(one_sided, dtype=bool) & drop[labels]  # spared from dropping only
     random = config.representative == "random"
-    keep, n_in, n_kept = _filter_kernel(points, np.arange(len(points)), labels, drop, planar, sample, spare, random)
+    keep, n_in, n_kept = _filter(points, np.arange(len(points)), labels, drop, planar, sample, spare, random)
     source = None
     if config.source_cell or config.source_exclude:
         s_drop = np.zeros(256, dtype=bool)
@@ -231,7 +246,7 @@ def filter_points(
             c = _code(name, "source_cell", size)
             (s_planar if thin[c] else s_sample)[c] = size
         idx = np.flatnonzero(keep)
-        chosen, _, _ = _filter_kernel(points[idx], idx, labels[idx], s_drop, s_planar, s_sample, spare[idx], random)
+        chosen, _, _ = _filter(points[idx], idx, labels[idx], s_drop, s_planar, s_sample, spare[idx], random)
         source = np.zeros(len(points), dtype=bool)
         source[idx[chosen]] = True
     present = np.flatnonzero(n_in)

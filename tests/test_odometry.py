@@ -107,6 +107,15 @@ def test_filter_random_representative_is_the_lowest_hash_of_each_cell():
     assert len(kept) == 100 and len(set((kept % 10).tolist())) == 10
 
 
+def test_filter_with_more_cells_than_its_first_table_keeps_every_cell():
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(-100, 100, (5000, 3))  # every point in a cell of its own
+    lab = np.full(5000, L.BUILDING, np.uint8)
+    res = filter_points(pts, lab, FilterConfig(sample_other=0.01, source_cell={}))
+    assert res.keep.all() and res.counts_kept == {"building": 5000}
+    assert sorted(res.kept_in_order.tolist()) == list(range(5000))
+
+
 def test_partial_yaml_config_changes_only_its_keys(tmp_path):
     base = Config(prc=PRCConfig.preset("multibeam"))
     path = tmp_path / "c.yaml"
