@@ -826,7 +826,8 @@ def _curb_faces(xyz, valid, lines, zg, steep, ground_tol, min_rise, t_curb, max_
         while j < n:
             a, k = pts[j - 1], pts[j]
             dz = xyz[k, 2] - xyz[a, 2]
-            # a steep step up from a return at the local ground level starts a possible face
+            # a steep step up from a return at the local ground level starts a possible face (a NaN
+            # local ground fails the level test, as the infinite one did)
             if not (dz > 0 and dz > steep * abs(rho[j] - rho[j - 1]) and abs(xyz[a, 2] - zg[a]) < ground_tol):
                 j += 1
                 continue
@@ -888,7 +889,7 @@ def detect_curbs_spinning(
     valid = scan.valid.ravel()
     if zg is None:
         zg = local_ground(lines, ground.ravel(), xyz[:, 2], line_height)
-    zg = np.where(np.isnan(zg.ravel()), np.inf, zg.ravel())
+    zg = np.ascontiguousarray(zg.ravel(), dtype=np.float64)  # NaN: no ground level (fails the level test)
     face = _curb_faces(xyz, valid, lines, zg, steep, ground_tol, min_rise, t_curb, 0.05)
     mask = np.zeros(rows * cols, bool)
     members = np.flatnonzero(face)
