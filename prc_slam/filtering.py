@@ -92,13 +92,10 @@ class FilterResult:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _priority(i, random):
-    """Rank of point ``i`` among the points of its cell (the lowest is kept): its index, or the
-    splitmix64 hash of it (a pseudo-random point of the cell)."""
-    z = np.uint64(i)
-    if not random:
-        return z
-    z = z + np.uint64(0x9E3779B97F4A7C15)
+def _priority(i):
+    """Pseudo-random rank of point ``i`` (splitmix64 of its index): with ``representative="random"``
+    the point of lowest rank stands for its cell."""
+    z = np.uint64(i) + np.uint64(0x9E3779B97F4A7C15)
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
     z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
     return z ^ (z >> np.uint64(31))
@@ -108,10 +105,10 @@ def _priority(i, random):
 def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random, size):
     """One pass: drop by class (except ``spare`` points); keep one point of every occupied cell,
     per class, of the horizontal grid (cell ``planar[c]``) of the thinned classes and of the 3-D
-    grid (cell ``sample[c]``) of the sampled classes: the point of lowest :func:`_priority` of its
-    id (open-addressing hash of (class, cell) with ``size`` slots, a power of two, O(n)); count
-    per class. Returns ``None`` for ``keep`` when more than half the slots fill (call again with
-    a larger ``size``)."""
+    grid (cell ``sample[c]``) of the sampled classes: the first one met, or with ``random`` the one
+    of lowest :func:`_priority` of its id (open-addressing hash of (class, cell) with ``size``
+    slots, a power of two, O(n)); count per class. Returns ``None`` for ``keep`` when more than
+    half the slots fill (call again with a larger ``size``)."""
     n = points.shape[0]
     n_cells = 0
     # one int64 key per (class, cell): 14 bits of class-and-plane flag, 3 x 16 bits of cell
@@ -153,7 +150,7 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random, siz
                 table[2 * h] = key
                 table[2 * h + 1] = i
                 keep[i] = True
-            elif random and _priority(ids[i], True) < _priority(ids[table[2 * h + 1]], True):
+            elif random and _priority(ids[i]) < _priority(ids[table[2 * h + 1]]):
                 keep[table[2 * h + 1]] = False
                 table[2 * h + 1] = i
                 keep[i] = True
@@ -191,7 +188,7 @@ def registration_order(kept: np.ndarray) -> np.ndarray:
 def _hash16(ids):
     out = np.empty(len(ids), np.uint16)
     for k in range(len(ids)):
-        out[k] = np.uint16(_priority(ids[k], True) >> np.uint64(48))
+        out[k] = np.uint16(_priority(ids[k]) >> np.uint64(48))
     return out
 
 
