@@ -7,6 +7,10 @@ verified curb keep their coarse class.
 Spinning multi-beam sensors take the path of :mod:`prc_slam.online.spinning` for cars (and, beside
 Sec. 6, for curb faces; the column ground where columns are too short for Sec. 5 (a));
 ``OnlineDetector.paper()`` keeps the paper's per-column car algorithm on every sensor.
+
+With more than one numba thread the coarse classifier splits its lines between threads and the
+curb detectors run beside the spinning car path (:mod:`prc_slam.online.threads`); the results are
+the same with any thread count (``NUMBA_NUM_THREADS=1``: everything in the calling thread).
 """
 
 from __future__ import annotations
