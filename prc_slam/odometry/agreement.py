@@ -9,16 +9,17 @@ must agree to ``agreement_m`` plus ``agreement_share`` of the path, and to ``agr
 that share of the angle turned (KITTI's odometry benchmark judges errors in per cent of the path;
 good odometry stays near 1 %, so 5 % is a wrong trajectory, not a different choice of points).
 
-When two variants disagree, a yardstick common to both says which motion is wrong: the current
-frame's points moved by each variant's last frame-to-frame motion into the previous frame, and
-their distance to the previous frame's points (mean over the points, each distance capped at one
-voxel; neither frame deskewed, the same for both motions). The variant whose motion fits clearly
-worse (by ``agreement_margin``) is flagged suspicious at that frame, with the reason; when the
-fits do not tell them apart, both are.
+When two variants disagree, a yardstick common to both says which is wrong: each frame's points
+moved by a variant's frame-to-frame motion into the previous frame, and their distance to the
+previous frame's points (mean over the points, each distance capped at one voxel; neither frame
+deskewed, the same for every motion), averaged over the window's steps. The variant whose motions
+fit clearly worse (by ``agreement_margin``) is flagged suspicious at that frame, with the reason;
+when the fits do not tell them apart, both are.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from itertools import combinations, pairwise
 
@@ -87,7 +88,8 @@ class AgreementMonitor:
     ----------
     config : GuardConfig
         ``agreement_window``, ``agreement_m``, ``agreement_share``, ``agreement_deg``,
-        ``agreement_margin``.
+        ``agreement_margin``; frames before ``warm_up`` are not checked (as by the divergence
+        monitor: the first frames' motions have no constant-velocity prediction behind them).
     voxel : float
         Voxel of the yardstick (:func:`step_fit`), KISS-ICP's.
     """
@@ -96,18 +98,35 @@ class AgreementMonitor:
         self.config = config
         self.voxel = float(voxel)
         self.pairs: dict[tuple[str, str], Disagreement] = {}
-        self._previous: np.ndarray | None = None
+        self._frames: deque[np.ndarray] = deque(maxlen=config.agreement_window + 1)  # the window's points
+        self._fits: dict[tuple[str, int], float] = {}  # (variant, frame number) -> fit of its step into it
+        self._n = 0  # frames seen
+
+    def _window_fit(self, name: str, poses: list[np.ndarray], w: int) -> float:
+        """Mean :func:`step_fit` of ``name``'s last ``w`` steps (each computed once)."""
+        fits = []
+        for back in range(w):
+            key = (name, self._n - 1 - back)
+            if key not in self._fits:
+                prev, cur = self._frames[-2 - back], self._frames[-1 - back]
+                step = np.linalg.inv(poses[-2 - back]) @ poses[-1 - back]
+                self._fits[key] = step_fit(prev, cur, step, self.voxel)
+            fits.append(self._fits[key])
+        return float(np.mean(fits))
 
     def update(self, index: int, points: np.ndarray, poses: dict[str, list[np.ndarray]]) -> dict[str, str]:
         """Check frame ``index``; ``poses`` are the pose lists of the variants that registered it
         (each ending with this frame's pose). Returns the reason per suspect variant."""
-        previous, self._previous = self._previous, points
+        self._frames.append(points)
+        self._n += 1
         c = self.config
+        self._fits = {k: v for k, v in self._fits.items() if k[1] > self._n - 2 - c.agreement_window}
+        if index < c.warm_up:  # KISS-ICP's first frames have no motion model yet
+            return {}
         flagged: dict[str, list[str]] = {}
-        fits: dict[str, float] = {}
         for a, b in combinations(sorted(poses), 2):
             pa, pb = poses[a], poses[b]
-            w = min(c.agreement_window, len(pa) - 1, len(pb) - 1)
+            w = min(c.agreement_window, len(pa) - 1, len(pb) - 1, len(self._frames) - 1)
             if w < 1:
                 continue
             ma = np.linalg.inv(pa[-1 - w]) @ pa[-1]
@@ -123,21 +142,16 @@ class AgreementMonitor:
             d.frames += 1
             d.max_difference_m = max(d.max_difference_m, diff_m)
             d.max_difference_deg = max(d.max_difference_deg, diff_deg)
-            for name in (a, b):
-                if name not in fits:
-                    step = np.linalg.inv(poses[name][-2]) @ poses[name][-1]
-                    fits[name] = float("nan") if previous is None else step_fit(previous, points, step, self.voxel)
-            fa, fb = fits[a], fits[b]
+            fa, fb = self._window_fit(a, pa, w), self._window_fit(b, pb, w)
             what = (
                 f"disagrees by {diff_m:.2f} m / {diff_deg:.1f} deg over {w} frames (bound {bound:.2f} m / "
                 f"{bound_deg:.1f} deg)"
             )
             if np.isfinite(fa) and np.isfinite(fb) and max(fa, fb) > c.agreement_margin * min(fa, fb):
-                worse, better = (a, b) if fa > fb else (b, a)
+                (worse, fw), (better, fbt) = sorted(((a, fa), (b, fb)), key=lambda x: -x[1])
                 d.suspects.add(worse)
                 flagged.setdefault(worse, []).append(
-                    f"{what} with {better}, whose last motion fits successive scans better "
-                    f"({fits[better]:.3f} vs {fits[worse]:.3f} m)"
+                    f"{what} with {better}, whose motions fit successive scans better ({fbt:.3f} vs {fw:.3f} m)"
                 )
             else:
                 d.suspects.update((a, b))
