@@ -111,6 +111,7 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random, siz
     half the slots fill (call again with a larger ``size``)."""
     n = points.shape[0]
     n_cells = 0
+    last_key, last_h, last_rank = np.int64(-1), 0, np.uint64(0)  # the cell of the previous point
     # one int64 key per (class, cell): 14 bits of class-and-plane flag, 3 x 16 bits of cell
     # coordinates (wrapped; two cells 65536 cells apart can share a key, never within a frame),
     # and beside it (same cache line) the index of the cell's point of lowest priority so far
@@ -140,9 +141,19 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random, siz
             cy = np.int64(np.floor(points[i, 1] * inv)) & 0xFFFF
             cz = np.int64(0) if inv_planar[c] > 0 else np.int64(np.floor(points[i, 2] * inv)) & 0xFFFF
             key = (np.int64(c) << 48) | (cx << 32) | (cy << 16) | cz
+            if key == last_key:  # successive returns often share a cell: no look-up
+                if random:
+                    rank = _priority(ids[i])
+                    if rank < last_rank:
+                        keep[table[2 * last_h + 1]] = False
+                        table[2 * last_h + 1] = i
+                        keep[i] = True
+                        last_rank = rank
+                continue
             h = ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791) ^ (np.int64(c) * 2654435761)) & (size - 1)
             while table[2 * h] >= 0 and table[2 * h] != key:
                 h = (h + 1) & (size - 1)
+            last_key, last_h = key, h
             if table[2 * h] != key:
                 n_cells += 1
                 if 2 * n_cells > size:
@@ -150,10 +161,15 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random, siz
                 table[2 * h] = key
                 table[2 * h + 1] = i
                 keep[i] = True
-            elif random and _priority(ids[i]) < _priority(ids[table[2 * h + 1]]):
-                keep[table[2 * h + 1]] = False
-                table[2 * h + 1] = i
-                keep[i] = True
+                last_rank = _priority(ids[i])
+            elif random:
+                last_rank = _priority(ids[table[2 * h + 1]])
+                rank = _priority(ids[i])
+                if rank < last_rank:
+                    keep[table[2 * h + 1]] = False
+                    table[2 * h + 1] = i
+                    keep[i] = True
+                    last_rank = rank
             continue
         keep[i] = True
     for i in range(n):

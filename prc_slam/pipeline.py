@@ -34,7 +34,8 @@ class FrameError(ValueError):
 
 @dataclass
 class ClassifiedFrame:
-    """One input frame with its PRC labels per slot and the PRC compute time spent on it.
+    """One input frame with its PRC labels per slot and the PRC compute time spent on it
+    (``seconds``: the classifier's, plus the organiser's when the reader had to organise the sweep).
 
     ``labels`` is None when the run has no PRC stage. ``one_sided`` marks noise slots that meet
     one of the two support conditions of eq. (4) (thin poles, edges), as opposed to isolated
@@ -78,7 +79,8 @@ def classify_frames(scans: Iterable[Scan], config: PRCConfig) -> Iterator[Classi
             wrap = True if config.wrap_columns is None else config.wrap_columns
             t0 = time.perf_counter()
             res = prc_block(scan.ranges, config, sensor=scan.sensor, wrap=wrap, ground_state=ground_state)
-            seconds = time.perf_counter() - t0
+            # organising an unorganised sweep (KITTI bins, PCD, bags) is PRC's cost too
+            seconds = time.perf_counter() - t0 + float(scan.meta.get("organize_seconds", 0.0))
             yield ClassifiedFrame(scan, res.labels, seconds, res.one_sided, getattr(res, "ground_error", None))
             continue
         if stream is None:
