@@ -51,7 +51,9 @@ class Strided:
             raise IndexError(i)
         return self.dataset[i * self.stride]
 
-    def __getattr__(self, name: str) -> Any:
+    def __getattr__(self, name: str) -> Any:  # the dataset's other attributes (poses, sensor, ...)
+        if name == "dataset":  # not set yet (unpickling)
+            raise AttributeError(name)
         return getattr(self.dataset, name)
 
 
