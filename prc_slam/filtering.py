@@ -139,33 +139,27 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random, siz
             cy = np.int64(np.floor(points[i, 1] * inv)) & 0xFFFF
             cz = np.int64(0) if inv_planar[c] > 0 else np.int64(np.floor(points[i, 2] * inv)) & 0xFFFF
             key = (np.int64(c) << 48) | (cx << 32) | (cy << 16) | cz
-            if key == last_key:  # successive returns often share a cell: no look-up
+            if key != last_key:  # successive returns often share a cell: then no look-up
+                h = ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791) ^ (np.int64(c) * 2654435761)) & (size - 1)
+                while table[2 * h] >= 0 and table[2 * h] != key:
+                    h = (h + 1) & (size - 1)
+                last_key, last_h = key, h
+                if table[2 * h] != key:  # a new cell: this point stands for it, for now
+                    n_cells += 1
+                    if 2 * n_cells > size:
+                        return None, n_in, n_kept
+                    table[2 * h] = key
+                    table[2 * h + 1] = i
+                    keep[i] = True
+                    last_rank = _priority(ids[i])
+                    continue
                 if random:
-                    rank = _priority(ids[i])
-                    if rank < last_rank:
-                        keep[table[2 * last_h + 1]] = False
-                        table[2 * last_h + 1] = i
-                        keep[i] = True
-                        last_rank = rank
-                continue
-            h = ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791) ^ (np.int64(c) * 2654435761)) & (size - 1)
-            while table[2 * h] >= 0 and table[2 * h] != key:
-                h = (h + 1) & (size - 1)
-            last_key, last_h = key, h
-            if table[2 * h] != key:
-                n_cells += 1
-                if 2 * n_cells > size:
-                    return None, n_in, n_kept
-                table[2 * h] = key
-                table[2 * h + 1] = i
-                keep[i] = True
-                last_rank = _priority(ids[i])
-            elif random:
-                last_rank = _priority(ids[table[2 * h + 1]])
+                    last_rank = _priority(ids[table[2 * h + 1]])
+            if random:
                 rank = _priority(ids[i])
                 if rank < last_rank:
-                    keep[table[2 * h + 1]] = False
-                    table[2 * h + 1] = i
+                    keep[table[2 * last_h + 1]] = False
+                    table[2 * last_h + 1] = i
                     keep[i] = True
                     last_rank = rank
             continue
