@@ -151,6 +151,27 @@ def hmm_cusum(x, means, sigma, a0, a1, h):
     return _hmm_cusum_n(x, means, sigma, a0, a1, h)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _cusum_step(llr, k, state, w, start, h, changed):
+    """One step of the CUSUM between the two chains at sample ``k``: ``llr`` is log l1 - log l0;
+    past ``h`` the state switches and the samples since the statistic last left zero take the new
+    state (marked in ``changed``). Returns ``(state, w, start)``."""
+    if state == 1:
+        llr = -llr
+    w = max(0.0, w + llr)
+    if w == 0.0:
+        start = k + 1
+    elif w > h:
+        for j in range(start, k + 1):
+            changed[j] = state == 0
+        state = 1 - state
+        w = 0.0
+        start = k + 1
+    if state == 1:
+        changed[k] = True
+    return state, w, start
+
+
 @njit(cache=True, nogil=True)
 def _hmm_cusum_n(x, means, sigma, a0, a1, h):
     """:func:`hmm_cusum` for any number of states."""
@@ -183,20 +204,7 @@ def _hmm_cusum_n(x, means, sigma, a0, a1, h):
         for j in range(ns):
             f0[j] = p0[j] / l0
             f1[j] = p1[j] / l1
-        llr = np.log(l1) - np.log(l0)
-        if state == 1:
-            llr = -llr
-        w = max(0.0, w + llr)
-        if w == 0.0:
-            start = k + 1
-        elif w > h:
-            for j in range(start, k + 1):
-                changed[j] = state == 0
-            state = 1 - state
-            w = 0.0
-            start = k + 1
-        if state == 1:
-            changed[k] = True
+        state, w, start = _cusum_step(np.log(l1) - np.log(l0), k, state, w, start, h, changed)
     return changed
 
 
@@ -236,20 +244,7 @@ def _hmm_cusum3(x, means, sigma, a0, a1, h):
         l1 = ((0.0 + p10) + p11) + p12
         f00, f01, f02 = p00 / l0, p01 / l0, p02 / l0
         f10, f11, f12 = p10 / l1, p11 / l1, p12 / l1
-        llr = np.log(l1) - np.log(l0)
-        if state == 1:
-            llr = -llr
-        w = max(0.0, w + llr)
-        if w == 0.0:
-            start = k + 1
-        elif w > h:
-            for j in range(start, k + 1):
-                changed[j] = state == 0
-            state = 1 - state
-            w = 0.0
-            start = k + 1
-        if state == 1:
-            changed[k] = True
+        state, w, start = _cusum_step(np.log(l1) - np.log(l0), k, state, w, start, h, changed)
     return changed
 
 
