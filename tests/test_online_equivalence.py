@@ -227,3 +227,26 @@ def test_lowest_mean_is_the_sorted_definition(z, k):
     for v in np.sort(z)[:m]:  # summed from the lowest up, as numba's mean (numpy's sum is pairwise)
         total += v
     assert _lowest_mean(z, k) == total / m
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 70))
+def test_first_runs_are_part_a_from_each_lines_start(seed, n_lines, width):
+    """The threaded pre-pass of the ground algorithm: each line's first potential-ground run, as
+    :func:`_potential_ground` finds it on that line's returns (padding and invalid slots skipped)."""
+    from prc_slam.online.ground import _potential_ground, first_runs_in_threads
+
+    rng = np.random.default_rng(seed)
+    n_slots = n_lines * width
+    codes = rng.choice(np.array([68, 68, 68, 69, 5], np.uint8), n_slots)
+    phi = rng.normal(0.0, rng.choice([2.0, 8.0]), n_slots).astype(np.float32)
+    valid = rng.random(n_slots) > 0.1
+    xyz = rng.normal(size=(n_slots, 3))
+    lines = rng.permutation(n_slots).reshape(n_lines, width).astype(np.int64)
+    lines[:, width - rng.integers(0, width // 4 + 1) :] = -1  # padded ends
+    run_a, run_b = first_runs_in_threads(codes, phi, valid, xyz, lines, 10, 10.0)
+    scratch = (np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1))
+    for li, line in enumerate(lines):
+        slots = [s for s in line if s >= 0 and valid[s]]  # the line's returns in order
+        c, p = codes[slots], phi[slots].astype(np.float64)
+        assert (run_a[li], run_b[li]) == _potential_ground(c, p, 0, 10, 10.0, *scratch)

@@ -25,6 +25,7 @@ from numba import njit
 
 from prc_slam import labels as L
 from prc_slam.online.coarse import CoarseResult
+from prc_slam.online.threads import in_threads
 from prc_slam.scan import Scan
 
 HISTORY = 500
@@ -236,12 +237,72 @@ def _lowest_mean(z, k):
 
 
 @njit(cache=True, nogil=True)
+def _gather_line(line, slot_codes, slot_phi, valid, xyz, pts_buf, codes_buf, phi_buf, zs_buf):
+    """The returns of one scan line into the buffers (slots, codes, line angles, heights, in line
+    order); returns their count."""
+    m = 0
+    for j in range(line.shape[0]):
+        s = line[j]
+        if s < 0:
+            break
+        if valid[s]:
+            pts_buf[m] = s
+            codes_buf[m] = slot_codes[s]
+            phi_buf[m] = np.float64(slot_phi[s])
+            zs_buf[m] = xyz[s, 2]
+            m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def first_runs(slot_codes, slot_phi, valid, xyz, lines, lo, hi, run_len, phi_bw, run_a, run_b):
+    """Part (a) from the start of each line ``lo..hi - 1``: its first potential-ground run
+    ``(run_a, run_b)`` in the line's returns (-1, -1: none), written per line.
+
+    Part (a) from a line's start does not depend on ``z_d``, so these runs, the bulk of the
+    ground algorithm's work, are computed for all lines independently (in threads, see
+    :func:`first_runs_in_threads`) before the sequential pass of part (b) takes them."""
+    width = lines.shape[1]
+    pts_buf = np.empty(width, np.int64)
+    codes_buf = np.empty(width, slot_codes.dtype)
+    phi_buf = np.empty(width)
+    zs_buf = np.empty(width)
+    srt, rank, cnt, tot = np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1)
+    for li in range(lo, hi):
+        m = _gather_line(lines[li], slot_codes, slot_phi, valid, xyz, pts_buf, codes_buf, phi_buf, zs_buf)
+        a, b = _potential_ground(codes_buf[:m], phi_buf[:m], 0, run_len, phi_bw, srt, rank, cnt, tot)
+        run_a[li] = a
+        run_b[li] = b
+
+
+def first_runs_in_threads(
+    slot_codes: np.ndarray,
+    slot_phi: np.ndarray,
+    valid: np.ndarray,
+    xyz: np.ndarray,
+    lines: np.ndarray,
+    run_len: int,
+    phi_bw: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`first_runs` of every line, the lines split between the numba threads."""
+    run_a = np.empty(lines.shape[0], np.int64)
+    run_b = np.empty(lines.shape[0], np.int64)
+    in_threads(
+        lambda lo, hi: first_runs(slot_codes, slot_phi, valid, xyz, lines, lo, hi, run_len, phi_bw, run_a, run_b),
+        lines.shape[0],
+    )
+    return run_a, run_b
+
+
+@njit(cache=True, nogil=True)
 def ground_lines(
     xyz,
     slot_codes,
     slot_phi,
     valid,
     lines,
+    run_a,
+    run_b,
     z_hist,
     n_hist,
     zd,
@@ -254,7 +315,8 @@ def ground_lines(
     n_init,
 ):
     """Parts (a) and (b) over all lines of a frame, continuing the state ``(z_hist, n_hist,
-    zd, have_zd)``. Returns the ground mask per slot, the per-line ground height and the state."""
+    zd, have_zd)``; ``run_a, run_b``: each line's first potential-ground run (:func:`first_runs`).
+    Returns the ground mask per slot, the per-line ground height and the state."""
     n_slots = xyz.shape[0]
     ground = np.zeros(n_slots, np.bool_)
     line_height = np.full(lines.shape[0], np.nan)
@@ -266,24 +328,20 @@ def ground_lines(
     zs_buf = np.empty(width)
     srt, rank, cnt, tot = np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1)
     for li in range(lines.shape[0]):
-        m = 0
-        for j in range(width):
-            s = lines[li, j]
-            if s < 0:
-                break
-            if valid[s]:
-                pts_buf[m] = s
-                codes_buf[m] = slot_codes[s]
-                phi_buf[m] = np.float64(slot_phi[s])
-                zs_buf[m] = xyz[s, 2]
-                m += 1
+        if run_a[li] < 0 and have_zd:
+            line_height[li] = zd  # no potential ground on this line: the last updated estimate
+            continue
+        m = _gather_line(lines[li], slot_codes, slot_phi, valid, xyz, pts_buf, codes_buf, phi_buf, zs_buf)
         pts = pts_buf[:m]
         codes = codes_buf[:m]
         phi = phi_buf[:m]
         zs = zs_buf[:m]
         first = 0
         while True:
-            a, b = _potential_ground(codes, phi, first, run_len, phi_bw, srt, rank, cnt, tot)
+            if first == 0:
+                a, b = run_a[li], run_b[li]
+            else:
+                a, b = _potential_ground(codes, phi, first, run_len, phi_bw, srt, rank, cnt, tot)
             if a < 0:
                 break
             zi = _lowest_mean(zs[a:b], 5)
@@ -343,11 +401,14 @@ class GroundDetector:
         """The dominant ground height ``z_d`` (sensor frame), once known."""
         return self.zd if self.have_zd else None
 
-    def _run(self, args: tuple, lines: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:func:`ground_lines` on ``lines`` from the current state; updates the state."""
+    def _run(
+        self, args: tuple, lines: np.ndarray, runs: tuple[np.ndarray, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`ground_lines` on ``lines`` (first runs ``runs``) from the current state;
+        updates the state."""
         p = self.params
         ground, heights, pending, self.z_hist, self.n_hist, self.zd, self.have_zd = ground_lines(
-            *args, lines, self.z_hist, self.n_hist, self.zd, self.have_zd,
+            *args, lines, *runs, self.z_hist, self.n_hist, self.zd, self.have_zd,
             p.run_len, p.phi_bandwidth, p.z_bandwidth, p.rel_tolerance, p.grow_tolerance, p.n_init,
         )  # fmt: skip
         return ground, heights, pending
@@ -357,11 +418,14 @@ class GroundDetector:
         :attr:`line_heights` holds the ground height of each of the scan's lines."""
         xyz = scan.slot_xyz64()
         lines = coarse.lines
-        args = (xyz, coarse.codes.ravel(), coarse.phi_hat.ravel(), scan.valid.ravel())
+        codes, phi, valid = coarse.codes.ravel(), coarse.phi_hat.ravel(), scan.valid.ravel()
+        args = (xyz, codes, phi, valid)
+        p = self.params
+        run_a, run_b = first_runs_in_threads(codes, phi, valid, xyz, lines, p.run_len, p.phi_bandwidth)
         had = self.have_zd
-        ground, heights, pending = self._run(args, lines)
+        ground, heights, pending = self._run(args, lines, (run_a, run_b))
         if self.have_zd and not had and pending.any():  # start again from the first scan line
-            again, heights[pending], _ = self._run(args, lines[pending])
+            again, heights[pending], _ = self._run(args, lines[pending], (run_a[pending], run_b[pending]))
             ground |= again
         self.line_heights = np.where(np.isnan(heights), self.zd, heights) if self.have_zd else None
         assert L.HORIZONTAL == 68  # code tested by the kernel
