@@ -35,7 +35,7 @@ def surface_density(points: np.ndarray, voxel: float = 1.0, min_count: float = 8
     for _ in range(3):
         count = 0.0
         for shift in (0.0, 0.5 * voxel):
-            grid = VoxelGrid.build(pts + shift if shift else pts, voxel)
+            grid = VoxelGrid.build(pts, voxel, offset=shift)
             count = max(count, point_median(grid.counts))
         rho = count / voxel**2
         if count >= min_count or voxel >= 8.0:

@@ -362,30 +362,37 @@ def knn_normals(points: np.ndarray, k: int, radius: float) -> tuple[np.ndarray, 
 
 
 def verticality(
-    normals: np.ndarray, voxel: np.ndarray, n_voxels: int, normal_of: np.ndarray | None = None
+    normals: np.ndarray,
+    voxel: np.ndarray,
+    n_voxels: int,
+    normal_of: np.ndarray | None = None,
+    rows: np.ndarray | None = None,
 ) -> np.ndarray:
     """Sec. 3.4: share of the points in a point's voxel (``voxel`` index per point) whose normal
     is 80-100° to the up vector (points without a normal count as not horizontal-facing).
     ``normal_of``: the row of ``normals`` of each point (voxel normals shared by their points),
-    None when ``normals`` has one row per point."""
+    None when ``normals`` has one row per point. ``rows``: the points are ``voxel``'s entries at
+    these rows only (``voxel[rows]`` without the copy); None: all of them."""
+    voxel = np.asarray(voxel)
+    rows = np.arange(len(voxel)) if rows is None else np.asarray(rows)
     if normal_of is None:
-        normal_of = np.arange(len(voxel))
-    return _verticality(normals, np.asarray(normal_of), np.asarray(voxel), n_voxels, np.cos(np.radians(80.0)))
+        normal_of = np.arange(len(rows))
+    return _verticality(normals, np.asarray(normal_of), voxel, rows, n_voxels, np.cos(np.radians(80.0)))
 
 
 @njit(cache=True, nogil=True)
-def _verticality(normals, normal_of, voxel, n_voxels, cos80):
-    n = voxel.shape[0]
+def _verticality(normals, normal_of, voxel, rows, n_voxels, cos80):
+    n = rows.shape[0]
     counts = np.zeros(n_voxels, np.int64)
     facing = np.zeros(n_voxels)
     for i in range(n):
-        v = voxel[i]
+        v = voxel[rows[i]]
         counts[v] += 1
         if abs(normals[normal_of[i], 2]) < cos80:  # False for NaN
             facing[v] += 1.0
     out = np.empty(n)
     for i in range(n):
-        v = voxel[i]
+        v = voxel[rows[i]]
         out[i] = facing[v] / max(counts[v], 1)
     return out
 
