@@ -231,10 +231,11 @@ def test_lowest_mean_is_the_sorted_definition(z, k):
 
 @SETTINGS
 @given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 70))
-def test_first_runs_are_part_a_from_each_lines_start(seed, n_lines, width):
-    """The threaded pre-pass of the ground algorithm: each line's first potential-ground run, as
-    :func:`_potential_ground` finds it on that line's returns (padding and invalid slots skipped)."""
-    from prc_slam.online.ground import _potential_ground, first_runs_in_threads
+def test_gathered_lines_and_their_first_runs(seed, n_lines, width):
+    """The threaded pre-pass of the ground algorithm: each line's returns in order (padding and
+    invalid slots skipped) and its first potential-ground run, as :func:`_potential_ground`
+    finds it on those returns."""
+    from prc_slam.online.ground import LineReturns, _potential_ground
 
     rng = np.random.default_rng(seed)
     n_slots = n_lines * width
@@ -244,9 +245,15 @@ def test_first_runs_are_part_a_from_each_lines_start(seed, n_lines, width):
     xyz = rng.normal(size=(n_slots, 3))
     lines = rng.permutation(n_slots).reshape(n_lines, width).astype(np.int64)
     lines[:, width - rng.integers(0, width // 4 + 1) :] = -1  # padded ends
-    run_a, run_b = first_runs_in_threads(codes, phi, valid, xyz, lines, 10, 10.0)
+    got = LineReturns.gather(codes, phi, valid, xyz, lines, 10, 10.0)
     scratch = (np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1))
     for li, line in enumerate(lines):
-        slots = [s for s in line if s >= 0 and valid[s]]  # the line's returns in order
+        slots = np.array([s for s in line if s >= 0 and valid[s]], np.int64)  # the line's returns in order
+        m = got.count[li]
+        assert m == len(slots)
+        np.testing.assert_array_equal(got.pts[li, :m], slots)
+        np.testing.assert_array_equal(got.codes[li, :m], codes[slots])
+        np.testing.assert_array_equal(got.phi[li, :m], phi[slots].astype(np.float64))
+        np.testing.assert_array_equal(got.z[li, :m], xyz[slots, 2])
         c, p = codes[slots], phi[slots].astype(np.float64)
-        assert (run_a[li], run_b[li]) == _potential_ground(c, p, 0, 10, 10.0, *scratch)
+        assert (got.run_a[li], got.run_b[li]) == _potential_ground(c, p, 0, 10, 10.0, *scratch)

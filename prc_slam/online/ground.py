@@ -237,70 +237,92 @@ def _lowest_mean(z, k):
 
 
 @njit(cache=True, nogil=True)
-def _gather_line(line, slot_codes, slot_phi, valid, xyz, pts_buf, codes_buf, phi_buf, zs_buf):
-    """The returns of one scan line into the buffers (slots, codes, line angles, heights, in line
-    order); returns their count."""
-    m = 0
-    for j in range(line.shape[0]):
-        s = line[j]
-        if s < 0:
-            break
-        if valid[s]:
-            pts_buf[m] = s
-            codes_buf[m] = slot_codes[s]
-            phi_buf[m] = np.float64(slot_phi[s])
-            zs_buf[m] = xyz[s, 2]
-            m += 1
-    return m
+def gather_lines(
+    slot_codes, slot_phi, valid, xyz, lines, lo, hi, run_len, phi_bw, pts, codes, phi, zs, count, run_a, run_b
+):
+    """Lines ``lo..hi - 1``: their returns into contiguous rows (slot, code, line angle, height,
+    in line order; ``count`` per line) and part (a) from each line's start, the first
+    potential-ground run ``(run_a, run_b)`` in the line's returns (-1, -1: none).
 
-
-@njit(cache=True, nogil=True)
-def first_runs(slot_codes, slot_phi, valid, xyz, lines, lo, hi, run_len, phi_bw, run_a, run_b):
-    """Part (a) from the start of each line ``lo..hi - 1``: its first potential-ground run
-    ``(run_a, run_b)`` in the line's returns (-1, -1: none), written per line.
-
-    Part (a) from a line's start does not depend on ``z_d``, so these runs, the bulk of the
-    ground algorithm's work, are computed for all lines independently (in threads, see
-    :func:`first_runs_in_threads`) before the sequential pass of part (b) takes them."""
+    Neither depends on ``z_d``: this bulk of the ground algorithm's work is done for all lines
+    independently (in threads, :meth:`LineReturns.gather`), and the sequential pass of part (b),
+    :func:`ground_lines`, then reads each line's returns from memory in order."""
     width = lines.shape[1]
-    pts_buf = np.empty(width, np.int64)
-    codes_buf = np.empty(width, slot_codes.dtype)
-    phi_buf = np.empty(width)
-    zs_buf = np.empty(width)
     srt, rank, cnt, tot = np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1)
     for li in range(lo, hi):
-        m = _gather_line(lines[li], slot_codes, slot_phi, valid, xyz, pts_buf, codes_buf, phi_buf, zs_buf)
-        a, b = _potential_ground(codes_buf[:m], phi_buf[:m], 0, run_len, phi_bw, srt, rank, cnt, tot)
+        line = lines[li]
+        m = 0
+        for j in range(width):
+            s = line[j]
+            if s < 0:
+                break
+            if valid[s]:
+                pts[li, m] = s
+                codes[li, m] = slot_codes[s]
+                phi[li, m] = np.float64(slot_phi[s])
+                zs[li, m] = xyz[s, 2]
+                m += 1
+        count[li] = m
+        a, b = _potential_ground(codes[li, :m], phi[li, :m], 0, run_len, phi_bw, srt, rank, cnt, tot)
         run_a[li] = a
         run_b[li] = b
 
 
-def first_runs_in_threads(
-    slot_codes: np.ndarray,
-    slot_phi: np.ndarray,
-    valid: np.ndarray,
-    xyz: np.ndarray,
-    lines: np.ndarray,
-    run_len: int,
-    phi_bw: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`first_runs` of every line, the lines split between the numba threads."""
-    run_a = np.empty(lines.shape[0], np.int64)
-    run_b = np.empty(lines.shape[0], np.int64)
-    in_threads(
-        lambda lo, hi: first_runs(slot_codes, slot_phi, valid, xyz, lines, lo, hi, run_len, phi_bw, run_a, run_b),
-        lines.shape[0],
-    )
-    return run_a, run_b
+@dataclass
+class LineReturns:
+    """Every scan line's returns in contiguous rows (:func:`gather_lines`): slots ``pts``,
+    coarse ``codes``, line angles ``phi``, heights ``z`` (``count`` per line, the rest of a row
+    unused), and each line's first potential-ground run ``run_a..run_b`` (-1: none)."""
+
+    pts: np.ndarray  # int64 (lines, width)
+    codes: np.ndarray  # uint8 (lines, width)
+    phi: np.ndarray  # float64 (lines, width)
+    z: np.ndarray  # float64 (lines, width)
+    count: np.ndarray  # int64 (lines,)
+    run_a: np.ndarray  # int64 (lines,)
+    run_b: np.ndarray  # int64 (lines,)
+
+    @classmethod
+    def gather(
+        cls,
+        slot_codes: np.ndarray,
+        slot_phi: np.ndarray,
+        valid: np.ndarray,
+        xyz: np.ndarray,
+        lines: np.ndarray,
+        run_len: int,
+        phi_bw: float,
+    ) -> LineReturns:
+        """:func:`gather_lines` over every line, the lines split between the numba threads."""
+        n, width = lines.shape
+        out = cls(
+            np.empty((n, width), np.int64), np.empty((n, width), slot_codes.dtype), np.empty((n, width)),
+            np.empty((n, width)), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
+        )  # fmt: skip
+        in_threads(
+            lambda lo, hi: gather_lines(
+                slot_codes, slot_phi, valid, xyz, lines, lo, hi, run_len, phi_bw, *out.arrays()
+            ),
+            n,
+        )
+        return out
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        return self.pts, self.codes, self.phi, self.z, self.count, self.run_a, self.run_b
+
+    def subset(self, lines: np.ndarray) -> LineReturns:
+        """The rows of ``lines`` (a mask or indices)."""
+        return LineReturns(*(a[lines] for a in self.arrays()))
 
 
 @njit(cache=True, nogil=True)
 def ground_lines(
-    xyz,
-    slot_codes,
-    slot_phi,
-    valid,
-    lines,
+    n_slots,
+    pts_all,
+    codes_all,
+    phi_all,
+    zs_all,
+    count,
     run_a,
     run_b,
     z_hist,
@@ -314,28 +336,21 @@ def ground_lines(
     grow_tol,
     n_init,
 ):
-    """Parts (a) and (b) over all lines of a frame, continuing the state ``(z_hist, n_hist,
-    zd, have_zd)``; ``run_a, run_b``: each line's first potential-ground run (:func:`first_runs`).
-    Returns the ground mask per slot, the per-line ground height and the state."""
-    n_slots = xyz.shape[0]
+    """Parts (a) and (b) over all lines of a frame (their returns and first potential-ground
+    runs from :func:`gather_lines`), continuing the state ``(z_hist, n_hist, zd, have_zd)``.
+    Returns the ground mask of the ``n_slots`` slots, the per-line ground height and the state."""
+    n_lines = count.shape[0]
     ground = np.zeros(n_slots, np.bool_)
-    line_height = np.full(lines.shape[0], np.nan)
-    pending = np.zeros(lines.shape[0], np.bool_)  # lines seen before z_d existed
-    width = lines.shape[1]
-    pts_buf = np.empty(width, np.int64)  # the returns of a line, their codes, line angles and heights
-    codes_buf = np.empty(width, slot_codes.dtype)
-    phi_buf = np.empty(width)
-    zs_buf = np.empty(width)
+    line_height = np.full(n_lines, np.nan)
+    pending = np.zeros(n_lines, np.bool_)  # lines seen before z_d existed
+    width = pts_all.shape[1]
     srt, rank, cnt, tot = np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1)
-    for li in range(lines.shape[0]):
-        if run_a[li] < 0 and have_zd:
-            line_height[li] = zd  # no potential ground on this line: the last updated estimate
-            continue
-        m = _gather_line(lines[li], slot_codes, slot_phi, valid, xyz, pts_buf, codes_buf, phi_buf, zs_buf)
-        pts = pts_buf[:m]
-        codes = codes_buf[:m]
-        phi = phi_buf[:m]
-        zs = zs_buf[:m]
+    for li in range(n_lines):
+        m = count[li]
+        pts = pts_all[li, :m]
+        codes = codes_all[li, :m]
+        phi = phi_all[li, :m]
+        zs = zs_all[li, :m]
         first = 0
         while True:
             if first == 0:
@@ -401,14 +416,11 @@ class GroundDetector:
         """The dominant ground height ``z_d`` (sensor frame), once known."""
         return self.zd if self.have_zd else None
 
-    def _run(
-        self, args: tuple, lines: np.ndarray, runs: tuple[np.ndarray, np.ndarray]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:func:`ground_lines` on ``lines`` (first runs ``runs``) from the current state;
-        updates the state."""
+    def _run(self, n_slots: int, returns: LineReturns) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`ground_lines` on the lines of ``returns`` from the current state; updates the state."""
         p = self.params
         ground, heights, pending, self.z_hist, self.n_hist, self.zd, self.have_zd = ground_lines(
-            *args, lines, *runs, self.z_hist, self.n_hist, self.zd, self.have_zd,
+            n_slots, *returns.arrays(), self.z_hist, self.n_hist, self.zd, self.have_zd,
             p.run_len, p.phi_bandwidth, p.z_bandwidth, p.rel_tolerance, p.grow_tolerance, p.n_init,
         )  # fmt: skip
         return ground, heights, pending
@@ -416,16 +428,16 @@ class GroundDetector:
     def process(self, scan: Scan, coarse: CoarseResult) -> np.ndarray:
         """Ground mask (rows, cols) of one scan, given its coarse classification. Afterwards
         :attr:`line_heights` holds the ground height of each of the scan's lines."""
-        xyz = scan.slot_xyz64()
-        lines = coarse.lines
-        codes, phi, valid = coarse.codes.ravel(), coarse.phi_hat.ravel(), scan.valid.ravel()
-        args = (xyz, codes, phi, valid)
         p = self.params
-        run_a, run_b = first_runs_in_threads(codes, phi, valid, xyz, lines, p.run_len, p.phi_bandwidth)
+        valid = scan.valid.ravel()
+        returns = LineReturns.gather(
+            coarse.codes.ravel(), coarse.phi_hat.ravel(), valid, scan.slot_xyz64(), coarse.lines,
+            p.run_len, p.phi_bandwidth,
+        )  # fmt: skip
         had = self.have_zd
-        ground, heights, pending = self._run(args, lines, (run_a, run_b))
+        ground, heights, pending = self._run(len(valid), returns)
         if self.have_zd and not had and pending.any():  # start again from the first scan line
-            again, heights[pending], _ = self._run(args, lines[pending], (run_a[pending], run_b[pending]))
+            again, heights[pending], _ = self._run(len(valid), returns.subset(pending))
             ground |= again
         self.line_heights = np.where(np.isnan(heights), self.zd, heights) if self.have_zd else None
         assert L.HORIZONTAL == 68  # code tested by the kernel
