@@ -77,6 +77,80 @@ def _build(points, inv_size, flat=False, offset=0.0):
     return voxel, coords[:nv].copy(), table
 
 
+@njit(cache=True, nogil=True)
+def _build_plane(points, inv_size, ix0, iy0, nx, ny):
+    """Flat grid (x-y cells, z index 0) through a dense ``nx * ny`` array of cell indices over
+    the cells ``ix0.., iy0..``: the cells of :func:`_build` (``flat``), numbered in the same
+    order of first appearance, without hashing. ``ok`` is False when a point falls outside."""
+    n = points.shape[0]
+    dense = np.full(nx * ny, -1, np.int32)
+    coords = np.empty((max(n, 1), 3), np.int64)  # not zeroed: untouched pages stay unmapped
+    voxel = np.empty(n, np.int64)
+    nv = 0
+    for i in range(n):
+        x = np.int64(np.floor(points[i, 0] * inv_size))
+        y = np.int64(np.floor(points[i, 1] * inv_size))
+        a, b = x - ix0, y - iy0
+        if a < 0 or a >= nx or b < 0 or b >= ny:
+            return voxel, coords[:0].copy(), dense, False
+        k = a * ny + b
+        v = dense[k]
+        if v < 0:
+            v = nv
+            dense[k] = v
+            coords[v, 0], coords[v, 1], coords[v, 2] = x, y, 0
+            nv += 1
+        voxel[i] = v
+    return voxel, coords[:nv].copy(), dense, True
+
+
+@njit(cache=True, nogil=True)
+def _plane_bounds(points, inv_size):
+    """Least and largest x and y cell index of the points (``floor(p * inv_size)`` is monotone
+    in ``p``); ``ok`` False when a coordinate is not finite."""
+    lo0, lo1, hi0, hi1 = np.inf, np.inf, -np.inf, -np.inf
+    for i in range(points.shape[0]):
+        x, y = points[i, 0], points[i, 1]
+        if not (np.isfinite(x) and np.isfinite(y)):
+            return 0, 0, 0, 0, False
+        lo0, hi0 = min(lo0, x), max(hi0, x)
+        lo1, hi1 = min(lo1, y), max(hi1, y)
+    if points.shape[0] == 0:
+        return 0, 0, 0, 0, False
+    return (
+        np.int64(np.floor(lo0 * inv_size)), np.int64(np.floor(lo1 * inv_size)),
+        np.int64(np.floor(hi0 * inv_size)), np.int64(np.floor(hi1 * inv_size)), True,
+    )  # fmt: skip
+
+
+def _table_size(nv: int) -> int:
+    """The size :func:`_build` ends with for ``nv`` voxels (1024, doubled while half full)."""
+    size = 1024
+    while 2 * nv > size:
+        size *= 2
+    return size
+
+
+#: a flat grid uses a dense array of cells when its x-y box has at most this many cells per point
+PLANE_CELLS_PER_POINT = 2.0
+
+#: the dense plane of a grid without one: no cells
+NO_PLANE = (np.zeros(0, np.int32), 0, 0, 0, 0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def find_cell(plane, table, coords, x, y):
+    """Index of cell ``(x, y)`` of a flat grid or -1: from its dense ``plane`` (``(cells, ix0,
+    iy0, nx, ny)``) when it has one, else :func:`find` at z = 0."""
+    dense, ix0, iy0, nx, ny = plane
+    if dense.shape[0] == 0:
+        return find(table, coords, x, y, 0)
+    a, b = x - ix0, y - iy0
+    if a < 0 or a >= nx or b < 0 or b >= ny:
+        return -1
+    return np.int64(dense[a * ny + b])
+
+
 @njit(cache=True, nogil=True, inline="always")
 def find(table, coords, x, y, z):
     """Index of voxel ``(x, y, z)`` or -1."""
@@ -389,17 +463,46 @@ class VoxelGrid:
     size: float
     voxel: np.ndarray
     coords: np.ndarray
-    table: np.ndarray
+    _table: np.ndarray | None
     counts: np.ndarray
     _lists: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False, compare=False)
+    #: flat grids over a compact x-y box: ``(cells, ix0, iy0, nx, ny)``, the index of every cell
+    #: of the box (-1 empty) at ``cells[(x - ix0) * ny + y - iy0]`` (:func:`find_cell`)
+    plane: tuple = field(default=NO_PLANE, repr=False, compare=False)
 
     @classmethod
     def build(cls, points: np.ndarray, size: float, flat: bool = False, offset: float = 0.0) -> VoxelGrid:
         """Grid of ``points`` (N, 3) in cubes of side ``size``; ``flat``: of their x-y cells
         (z index 0 for all; the same grid as of the points with z set to 0, without the copy);
-        ``offset``: the grid of ``points + offset`` (the same floating-point sums), without the copy."""
-        voxel, coords, table = _build(np.asarray(points, dtype=np.float64), 1.0 / size, flat, float(offset))
+        ``offset``: the grid of ``points + offset`` (the same floating-point sums), without the copy.
+        A flat grid whose x-y box has at most :data:`PLANE_CELLS_PER_POINT` cells per point is
+        built through a dense array of its cells (``plane``; the same cells in the same order)
+        and gets its hash table only when asked for it."""
+        pts = np.asarray(points, dtype=np.float64)
+        if flat and offset == 0.0:
+            x0, y0, x1, y1, ok = _plane_bounds(pts, 1.0 / size)
+            nx, ny = x1 - x0 + 1, y1 - y0 + 1
+            if ok and float(nx) * float(ny) <= PLANE_CELLS_PER_POINT * len(pts) + 4096 and len(pts) < 2**31:
+                voxel, coords, cells, ok = _build_plane(pts, 1.0 / size, x0, y0, nx, ny)
+                if ok:
+                    plane = (cells, x0, y0, nx, ny)
+                    return cls(size, voxel, coords, None, np.bincount(voxel, minlength=len(coords)), plane=plane)
+        voxel, coords, table = _build(pts, 1.0 / size, flat, float(offset))
         return cls(size, voxel, coords, table, np.bincount(voxel, minlength=len(coords)))
+
+    @property
+    def probe_table(self) -> np.ndarray:
+        """The hash table for :func:`find_cell`: the grid's own, or an empty stand-in (one free
+        slot) when its ``plane`` answers and the table was never made."""
+        return self._table if self._table is not None else np.full(1, -1, np.int64)
+
+    @property
+    def table(self) -> np.ndarray:
+        """The open-addressing hash table of the voxels (:func:`find`); made on first use for
+        grids built through a dense plane (the table :func:`_build` would have made)."""
+        if self._table is None:
+            self._table = _rehash(self.coords, self.n_voxels, _table_size(self.n_voxels))
+        return self._table
 
     @property
     def n_voxels(self) -> int:

@@ -173,6 +173,36 @@ def test_flat_grid_is_the_grid_of_the_points_on_z_0():
         np.testing.assert_array_equal(x, y)
 
 
+@pytest.mark.parametrize("spread", [40.0, 1e5])
+def test_flat_grid_through_a_dense_plane_or_the_hash(monkeypatch, spread):
+    """A compact x-y box goes through the dense plane, a sparse one (two clusters far apart)
+    through the hash: the same cells either way, and the planar kernels answer the same."""
+    import prc_slam.voxels as V
+    from prc_slam.mapclass.objects import height_above_ground, under_crown
+
+    pts = RNG.uniform(-20, 20, size=(4000, 3))
+    pts[::2, :2] += spread
+    ground = pts[::3].copy()
+    crown = RNG.random(len(pts)) < 0.2
+    a = VoxelGrid.build(pts, 0.9, flat=True)
+    assert (a.plane[0].size > 0) == (spread < 1000)
+    flat = VoxelGrid.build(np.column_stack([pts[:, :2], np.zeros(len(pts))]), 0.9)
+    for x, y in zip(
+        (a.voxel, a.coords, a.table, a.counts), (flat.voxel, flat.coords, flat.table, flat.counts), strict=True
+    ):
+        np.testing.assert_array_equal(x, y)
+    hag, crowned = height_above_ground(pts, ground, 1.3, 2), under_crown(pts, crown, 0.9, 1)
+    monkeypatch.setattr(V, "PLANE_CELLS_PER_POINT", -1e12)  # every flat grid through the hash
+    b = VoxelGrid.build(pts, 0.9, flat=True)
+    assert b.plane[0].size == 0
+    np.testing.assert_array_equal(a.voxel, b.voxel)
+    np.testing.assert_array_equal(hag, height_above_ground(pts, ground, 1.3, 2))
+    np.testing.assert_array_equal(crowned, under_crown(pts, crown, 0.9, 1))
+    # hand check of the height: a point over its own ground cell, ground at z = 1 there
+    g = np.array([[0.2, 0.2, 1.0], [0.4, 0.3, 1.0]])
+    np.testing.assert_allclose(height_above_ground(np.array([[0.3, 0.3, 3.5]]), g, 1.0, 1), [2.5])
+
+
 def test_local_density_hand_computed():
     # 54 points in voxel (0,0,0) and 27 in (1,0,0), voxel side 0.5 m: each voxel's 3x3x3
     # neighbourhood holds 81 points in 27 * 0.125 m^3

@@ -12,7 +12,7 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from prc_slam.mapclass.metrics import segment_density
-from prc_slam.voxels import VoxelGrid, find, group_members
+from prc_slam.voxels import VoxelGrid, find, find_cell, group_members
 
 
 @njit(cache=True, nogil=True)
@@ -234,8 +234,7 @@ def detect_buildings(
     rest = ~building & large[seg]
     if rest.any() and building.any():
         cols = VoxelGrid.build(points, 1.0, flat=True)
-        top = np.full(cols.n_voxels, -np.inf)
-        np.maximum.at(top, cols.voxel[building], points[building, 2])
+        top = _cell_top(cols.voxel, building, points, cols.n_voxels)
         above = (points[:, 2] >= top[cols.voxel] - 1.0) & np.isfinite(top[cols.voxel])
         share = np.bincount(seg[rest], weights=above[rest], minlength=ns) / np.maximum(
             np.bincount(seg[rest], minlength=ns), 1
@@ -248,20 +247,21 @@ def ground_height_grid(ground: np.ndarray, cell: float, radius: int) -> tuple[Vo
     """Mean ground height per xy cell over its ``(2r+1)^2`` neighbourhood."""
     grid = VoxelGrid.build(ground, cell, flat=True)
     sums = np.column_stack([np.bincount(grid.voxel, weights=ground[:, 2]), grid.counts])
-    agg = _planar_sum(grid.table, grid.coords, sums, radius)  # a flat grid: only the z = 0 layer is occupied
+    agg = _planar_sum(grid.plane, grid.probe_table, grid.coords, sums, radius)  # flat: only the z = 0 layer is occupied
     return grid, agg[:, 0] / agg[:, 1]
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _planar_sum(table, coords, values, radius):
+def _planar_sum(plane, table, coords, values, radius):
     """:meth:`VoxelGrid.neighbourhood_sum` of a flat grid (every voxel at z = 0): the
-    ``(2r+1)^2`` cells of its layer, added in the same order (the other layers are empty)."""
+    ``(2r+1)^2`` cells of its layer, added in the same order (the other layers are empty);
+    cells found through the grid's dense ``plane`` when it has one (:func:`find_cell`)."""
     nv, m = values.shape
     out = np.zeros((nv, m))
     for v in prange(nv):
         for dx in range(-radius, radius + 1):
             for dy in range(-radius, radius + 1):
-                u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, 0)
+                u = find_cell(plane, table, coords, coords[v, 0] + dx, coords[v, 1] + dy)
                 if u >= 0:
                     for j in range(m):
                         out[v, j] += values[u, j]
@@ -269,10 +269,13 @@ def _planar_sum(table, coords, values, radius):
 
 
 @njit(cache=True, nogil=True)
-def _lookup_cells(table, coords, keys):
-    out = np.empty(keys.shape[0], np.int64)
-    for i in range(keys.shape[0]):
-        out[i] = find(table, coords, keys[i, 0], keys[i, 1], 0)
+def _lookup_cells(plane, table, coords, points, cell):
+    """Index of the flat grid's cell ``floor(p / cell)`` under each point, -1 where none."""
+    out = np.empty(points.shape[0], np.int64)
+    for i in range(points.shape[0]):
+        x = np.int64(np.floor(points[i, 0] / cell))
+        y = np.int64(np.floor(points[i, 1] / cell))
+        out[i] = find_cell(plane, table, coords, x, y)
     return out
 
 
@@ -282,8 +285,7 @@ def height_above_ground(points: np.ndarray, ground: np.ndarray, cell: float = 1.
     if len(ground) == 0:
         return np.full(len(points), np.nan)
     grid, gz = ground_height_grid(ground, cell, radius)
-    keys = np.floor(points[:, :2] / cell).astype(np.int64)
-    idx = _lookup_cells(grid.table, grid.coords, keys)
+    idx = _lookup_cells(grid.plane, grid.probe_table, grid.coords, points, cell)
     out = np.full(len(points), np.nan)
     has = idx >= 0
     out[has] = points[has, 2] - gz[idx[has]]
@@ -305,12 +307,12 @@ def nearest_cell_centre(grid: VoxelGrid, points: np.ndarray, cell: float, bound:
     lowest index wins (a kd-tree takes the first it visits)."""
     own = VoxelGrid.build(points, cell, flat=True)
     reach = int(np.ceil(bound / cell)) + 1
-    start, cand, low = _window_cells(grid.table, grid.coords, own.coords, reach, cell, bound)
+    start, cand, low = _window_cells(grid.plane, grid.probe_table, grid.coords, own.coords, reach, cell, bound)
     return _nearest_in_lists(points, own.voxel, start, cand, low, grid.coords, cell, bound)
 
 
 @njit(cache=True, nogil=True)
-def _window_cells(table, coords, query, reach, cell, bound):
+def _window_cells(plane, table, coords, query, reach, cell, bound):
     """CSR lists of the occupied cells within ``reach`` cells (x and y) of each query cell
     whose centre can lie closer than ``bound`` to a point of the query cell, in increasing
     order of that lower bound (squared, ``low``; the cell taken a hair larger against rounding
@@ -328,7 +330,7 @@ def _window_cells(table, coords, query, reach, cell, bound):
         first = m
         for dx in range(-reach, reach + 1):
             for dy in range(-reach, reach + 1):
-                u = find(table, coords, query[q, 0] + dx, query[q, 1] + dy, 0)
+                u = find_cell(plane, table, coords, query[q, 0] + dx, query[q, 1] + dy)
                 if u < 0:
                     continue
                 cx, cy = (coords[u, 0] + 0.5) * cell, (coords[u, 1] + 0.5) * cell
@@ -570,19 +572,28 @@ def under_crown(
     if len(points) == 0 or not crown.any():
         return np.zeros(len(points), dtype=bool)
     grid = VoxelGrid.build(points, cell, flat=True)
-    top = np.full(grid.n_voxels, -np.inf)
-    np.maximum.at(top, grid.voxel[crown], points[crown, 2])
-    best = _planar_max(grid.table, grid.coords, top, reach)
+    top = _cell_top(grid.voxel, crown, points, grid.n_voxels)
+    best = _planar_max(grid.plane, grid.probe_table, grid.coords, top, reach)
     return best[grid.voxel] > points[:, 2] + above
 
 
+@njit(cache=True, nogil=True)
+def _cell_top(voxel, mask, points, n_voxels):
+    """Highest z of the ``mask`` points per voxel (-inf where none): ``np.maximum.at`` in one pass."""
+    top = np.full(n_voxels, -np.inf)
+    for i in range(voxel.shape[0]):
+        if mask[i] and points[i, 2] > top[voxel[i]]:
+            top[voxel[i]] = points[i, 2]
+    return top
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def _planar_max(table, coords, values, radius):
+def _planar_max(plane, table, coords, values, radius):
     out = np.full(values.shape[0], -np.inf)
     for v in prange(coords.shape[0]):
         for dx in range(-radius, radius + 1):
             for dy in range(-radius, radius + 1):
-                u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, 0)
+                u = find_cell(plane, table, coords, coords[v, 0] + dx, coords[v, 1] + dy)
                 if u >= 0 and values[u] > out[v]:
                     out[v] = values[u]
     return out
