@@ -56,6 +56,10 @@ log = logging.getLogger("prc_slam.organize")
 METHODS = ("auto", "ring", "order", "beams")
 TWO_PI = 2.0 * np.pi
 
+#: cost (in beam gaps) of giving a run the row of the run before it in a ring-major sweep (a ring
+#: cut in two), against one row further along the first sweep's ring order
+RING_REUSE_COST = 0.5
+
 #: share of points sharing a slot above which a sweep is reported (warning) / refused (error)
 WARN_COLLISIONS = 0.12
 MAX_COLLISIONS = 0.5
@@ -468,6 +472,50 @@ def _nearest_beam(te, ok, bounds, row):
 
 
 @njit(cache=True, nogil=True)
+def _align_runs(run_ang, beam_ang, gap, reuse):
+    """The rings of a ring-major sweep matched to the ring order of the sequence's first sweep.
+
+    ``run_ang``: median elevation of each run (candidate ring) in input order; ``beam_ang``: the
+    elevations of the first sweep's rings in that sweep's order. Each run takes one entry of the
+    order, never an earlier one than the run before it (rings come in the driver's order; rings
+    without returns are skipped at no cost), the same one again (a ring cut in two) at ``reuse``
+    gaps. Minimises the sum of ``|run - beam| / gap`` by dynamic programming; returns the entry
+    of each run and the mean cost per run."""
+    m = run_ang.shape[0]
+    n = beam_ang.shape[0]
+    big = 1e300
+    f = np.full((m, n), big)
+    back = np.full((m, n), -1, np.int64)
+    for j in range(n):
+        f[0, j] = abs(run_ang[0] - beam_ang[j]) / gap
+    for i in range(1, m):
+        best = big  # min of f[i - 1, :j]
+        arg = -1
+        for j in range(n):
+            c = abs(run_ang[i] - beam_ang[j]) / gap
+            stay = f[i - 1, j] + reuse
+            if best <= stay:
+                f[i, j] = best + c
+                back[i, j] = arg
+            else:
+                f[i, j] = stay + c
+                back[i, j] = j
+            if f[i - 1, j] < best:
+                best = f[i - 1, j]
+                arg = j
+    out = np.empty(m, np.int64)
+    j = 0
+    for k in range(1, n):
+        if f[m - 1, k] < f[m - 1, j]:
+            j = k
+    total = f[m - 1, j]
+    for i in range(m - 1, -1, -1):
+        out[i] = j
+        j = back[i, j]
+    return out, total / max(m, 1)
+
+
+@njit(cache=True, nogil=True)
 def _row_steps(az, row, rows, max_step):
     """Azimuth steps between consecutive points of the same row (input order), in (0, max_step)."""
     n = az.shape[0]
@@ -830,6 +878,7 @@ class Organizer:
         self.clean_rings: bool | None = None
         self._concentration = 1.0
         self._cut: float | None = None
+        self._ring_order: np.ndarray | None = None  # rows of the first ring-major sweep's rings, in order
         self._sensor: tuple[tuple, SpinningSensor] | None = None
         self.frames = 0
         self.warnings_total = 0
@@ -1079,6 +1128,7 @@ class Organizer:
             self.beam_te = self._beams_from_runs(med, cnt)
         bounds = _beam_bounds(self.beam_te)
         row_of_run = _nearest_beam(med, cnt > 0, bounds, np.empty(len(med), np.int64))
+        row_of_run = self._follow_ring_order(med, cnt, row_of_run, source, warnings)
         if self.clean_rings is None:
             # rings are elevation-clean when points of one ring spread far less than the beam gap
             spread = _run_spread(te, ok, lo, hi, med)
@@ -1089,6 +1139,38 @@ class Organizer:
         row = self._work("row", len(te), np.int64)
         _refine_cuts(te, ok, run, lo, hi, row_of_run, self.beam_te, window, self.clean_rings, row)
         return row, len(self.beam_te)
+
+    def _follow_ring_order(self, med, cnt, nearest, source, warnings):
+        """Rows of the runs of a ring-major sweep, following the ring order of the first sweep.
+
+        A ring's median elevation moves with the azimuths where it has returns (a motion-
+        compensated sweep, e.g. KITTI's, bends each ring's elevation by up to a beam gap along
+        the azimuth), so the nearest beam by median alone sends rings to a neighbour's row (KITTI 00
+        frames 7-15: 5-7 rows doubled, 12-19 % of the points sharing a slot). The driver writes
+        the rings in the same order in every sweep: the first sweep's order (its nearest-beam
+        rows, when they are distinct) is kept, and the runs of every later sweep are aligned to
+        it (:func:`_align_runs`). When they do not fit that order (over a beam gap off on average),
+        a warning, and the nearest beams."""
+        have = cnt > 0
+        if self._ring_order is None:
+            seq = nearest[have]
+            self._ring_order = seq.copy() if len(np.unique(seq)) == len(seq) else np.zeros(0, np.int64)
+            return nearest
+        seq = self._ring_order
+        if len(seq) < 2 or not have.any():
+            return nearest
+        beam_ang = np.arctan(self.beam_te)
+        gap = float(np.median(np.abs(np.diff(beam_ang))))
+        entry, cost = _align_runs(np.arctan(med[have]), beam_ang[seq], max(gap, 1e-9), RING_REUSE_COST)
+        if cost > 1.0:
+            warnings.append(
+                f"{source}: the rings do not follow the first sweep's ring order (off by {cost:.1f} beam gaps "
+                "on average); rows from the nearest beam elevations"
+            )
+            return nearest
+        out = nearest.copy()
+        out[have] = seq[entry]
+        return out
 
     @staticmethod
     def _row_phases(az, row, rows, a0, s, inv_step):

@@ -130,6 +130,45 @@ def test_beam_table_kept_across_frames():
     assert rep["rings"] == 7 and rep["empty_rows"] == 1
 
 
+def bent_sweep(seed, bend, only_bent=(), missing=()):
+    """A ring-major 16-beam sweep (2 deg apart) whose returns in the second half turn rise by
+    ``bend`` degrees (a motion-compensated sweep bends its rings so), beams ``only_bent``
+    keeping only a fifth of the first half's returns and beams ``missing`` none."""
+    xyz, beam, firing = spinning_sweep(rings=16, cols=720, keep=0.9, seed=seed)
+    az = np.arctan2(xyz[:, 1], xyz[:, 0])
+    second = az < 0.0  # firings 360..719
+    keep = ~np.isin(beam, missing) & ~(np.isin(beam, only_bent) & ~second & (firing >= 72))
+    r = np.linalg.norm(xyz, axis=1)
+    el = np.arcsin(xyz[:, 2] / r) + np.where(second, np.radians(bend), 0.0)
+    bent = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], axis=1)
+    return bent[keep].astype(np.float32), beam[keep], firing[keep]
+
+
+def test_rings_keep_their_rows_when_their_elevation_bends():
+    """KITTI 00 frames 7-15: rings bent along the azimuth by up to a beam gap have medians nearer
+    a neighbour's beam; each still gets its own row, by the first sweep's ring order (a missing
+    ring skipped). The nearest beam by median alone doubled rows 3 and 9 here."""
+    org = Organizer()
+    org.scan(bent_sweep(0, 0.0)[0])
+    xyz, beam, _ = bent_sweep(1, 1.3, only_bent=(3, 9), missing=(12,))
+    scan = org.scan(xyz)
+    rep = scan.meta["organize"]
+    assert (rep["rings"], rep["empty_rows"], rep["collisions_pct"], rep["warnings"]) == (15, 1, 0.0, [])
+    np.testing.assert_array_equal(scan.point_slot // scan.shape[1], beam)
+
+
+def test_rings_out_of_the_first_sweeps_order_are_reported():
+    """A later sweep whose rings come in another order than the first's: a warning, and the rows
+    from the nearest beam elevations."""
+    org = Organizer()
+    org.scan(spinning_sweep(rings=16, cols=720, keep=0.9, seed=0)[0])
+    xyz, beam, _ = spinning_sweep(rings=16, cols=720, keep=0.9, seed=1)
+    order = np.lexsort((np.arange(len(beam)), -beam))  # bottom ring first, each ring in firing order
+    scan = org.scan(xyz[order])
+    assert any("ring order" in w for w in scan.meta["organize"]["warnings"])
+    np.testing.assert_array_equal(scan.point_slot // scan.shape[1], beam[order])
+
+
 def test_no_return_points_keep_their_entry():
     xyz, *_ = spinning_sweep(rings=4, cols=180, seed=4)
     xyz = xyz.copy()
