@@ -173,6 +173,24 @@ def test_flat_grid_is_the_grid_of_the_points_on_z_0():
         np.testing.assert_array_equal(x, y)
 
 
+@pytest.mark.parametrize("scale", [1.0, 1e9])
+def test_compact_build_is_the_int64_build(scale):
+    """The int32 build gives the int64 build's voxels, order and table slots; voxel
+    coordinates beyond int32 (scale 1e9 at 0.3 m) take the int64 build, same grid."""
+    from prc_slam.voxels import _build, voxel_counts
+
+    pts = RNG.normal(0, 5, size=(6000, 3)) * scale
+    pts[1000:2000] = pts[999]  # runs in one voxel (the previous-point shortcut)
+    g = VoxelGrid.build(pts, 0.3)
+    voxel, coords, table = _build(pts, 1.0 / 0.3, False, 0.0)
+    np.testing.assert_array_equal(g.voxel, voxel)
+    np.testing.assert_array_equal(g.coords, coords)
+    np.testing.assert_array_equal(g.table, table)
+    assert g.table.dtype == (np.int32 if scale == 1.0 else np.int64)
+    for shift in (0.0, 0.5):
+        np.testing.assert_array_equal(voxel_counts(pts, 0.3, shift), VoxelGrid.build(pts + shift, 0.3).counts)
+
+
 @pytest.mark.parametrize("spread", [40.0, 1e5])
 def test_flat_grid_through_a_dense_plane_or_the_hash(monkeypatch, spread):
     """A compact x-y box goes through the dense plane, a sparse one (two clusters far apart)

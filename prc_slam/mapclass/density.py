@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from prc_slam.voxels import VoxelGrid
+from prc_slam.voxels import voxel_counts
 
 
 def surface_density(points: np.ndarray, voxel: float = 1.0, min_count: float = 8.0) -> float:
@@ -35,8 +35,7 @@ def surface_density(points: np.ndarray, voxel: float = 1.0, min_count: float = 8
     for _ in range(3):
         count = 0.0
         for shift in (0.0, 0.5 * voxel):
-            grid = VoxelGrid.build(pts, voxel, offset=shift)
-            count = max(count, point_median(grid.counts))
+            count = max(count, point_median(voxel_counts(pts, voxel, offset=shift)))
         rho = count / voxel**2
         if count >= min_count or voxel >= 8.0:
             break

@@ -223,12 +223,15 @@ def detect_buildings(
     # orange: whole segments with two thirds of their points close to buildings
     rest = ~building
     if rest.any():
-        d = grid_distance(grid, rest, building, close)
-        within = np.bincount(seg[rest], weights=d <= close, minlength=ns)
+        # segments mostly ``spare`` never join: their points need no distance
+        can = None if spare is None else np.bincount(seg, weights=spare, minlength=ns) < 0.5 * size
+        ask = rest if can is None else rest & can[seg]
+        d = grid_distance(grid, ask, building, close)
+        within = np.bincount(seg[ask], weights=d <= close, minlength=ns)
         total = np.bincount(seg[rest], minlength=ns)
         join = (total > 0) & (within >= close_share * total)
-        if spare is not None:
-            join &= np.bincount(seg, weights=spare, minlength=ns) < 0.5 * np.bincount(seg, minlength=ns)
+        if can is not None:
+            join &= can
         building |= join[seg] & rest
     # yellow: large segments above building points (roofs)
     rest = ~building & large[seg]
