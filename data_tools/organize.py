@@ -270,8 +270,9 @@ def _ring_runs(az, ok, s, jitter, over):
 def _ring_runs_cut(az, ok, s, cut, jitter, run):
     """Second pass of the ring-major cut: with the sweep's cut azimuth known, a ring ends
     where the azimuth passes the cut (``u``, the angle from the cut in direction ``s``, drops
-    by more than pi after the ring has travelled more than pi) or jumps back by more than
-    ``jitter`` (the ring ended early, the next one starts again near the cut). Writes the
+    by more than pi after the ring has travelled more than ``jitter``: an upper ring may see
+    only one building) or jumps back by more than ``jitter`` (the ring ended early, the next
+    one starts again near the cut). Writes the
     run of every point into ``run`` (-1 for no-return points); returns the number of runs."""
     n = az.shape[0]
     cur = -1
@@ -294,7 +295,7 @@ def _ring_runs_cut(az, ok, s, cut, jitter, run):
             prog = 0.0
         else:
             drop = up - u
-            if (drop > np.pi and prog > np.pi) or (jitter < drop <= np.pi):
+            if (drop > np.pi and prog > jitter) or (jitter < drop <= np.pi):
                 cur += 1
                 prog = 0.0
             else:

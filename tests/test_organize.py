@@ -157,6 +157,20 @@ def test_rings_keep_their_rows_when_their_elevation_bends():
     np.testing.assert_array_equal(scan.point_slot // scan.shape[1], beam)
 
 
+def test_a_ring_with_returns_over_less_than_half_a_turn_is_its_own_ring():
+    """An upper ring that only sees a building over 100 deg, then the next ring from the cut
+    azimuth on: a ring of its own (it was merged with the next one when a ring had to travel
+    half a turn before the azimuth could restart)."""
+    org = Organizer()
+    org.scan(spinning_sweep(rings=16, cols=720, keep=0.9, seed=0)[0])
+    xyz, beam, firing = spinning_sweep(rings=16, cols=720, keep=0.9, seed=1)
+    keep = ~((beam == 3) & ((firing < 400) | (firing > 600))) & ~((beam == 7) & (firing > 100))
+    scan = org.scan(xyz[keep])
+    rep = scan.meta["organize"]
+    assert (rep["rings"], rep["empty_rows"], rep["collisions_pct"]) == (16, 0, 0.0)
+    np.testing.assert_array_equal(scan.point_slot // scan.shape[1], beam[keep])
+
+
 def test_rings_out_of_the_first_sweeps_order_are_reported():
     """A later sweep whose rings come in another order than the first's: a warning, and the rows
     from the nearest beam elevations."""
