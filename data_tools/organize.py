@@ -737,11 +737,7 @@ def estimate_beam_offset(xyz: np.ndarray, max_offset: float = 0.1, samples: int 
     kernel = np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2)
 
     def sharpness(n: float) -> float:
-        # histogram at 0.005 deg, smoothed (sigma 0.01 deg) so that bin edges do not count
-        el = np.degrees(np.arctan(z / (rho - n)))
-        h = np.histogram(el, bins=36000, range=(-90.0, 90.0))[0].astype(np.float64)
-        h = np.convolve(h, kernel, mode="same")
-        return float((h * h).sum())
+        return _elevation_sharpness(z, rho, n, kernel)
 
     coarse = np.arange(-max_offset, max_offset + 1e-9, 0.005)
     scores = [sharpness(n) for n in coarse]
@@ -751,6 +747,35 @@ def estimate_beam_offset(xyz: np.ndarray, max_offset: float = 0.1, samples: int 
     best = float(fine[int(np.argmax(scores_f))])
     # only a clear gain over no offset counts
     return best if max(scores_f) > 1.05 * sharpness(0.0) else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _elevation_sharpness(z, rho, n, kernel):
+    """Sharpness of the elevation histogram with the beams ``n`` metres off the axis: elevations
+    ``atan(z / (rho - n))`` in 0.005 deg bins over (-90, 90), smoothed by ``kernel`` (centred) so
+    that bin edges do not count, summed squared. Only the bins the points reach (and the
+    kernel's reach around them) are visited."""
+    bins = 36000
+    half = kernel.shape[0] // 2
+    h = np.zeros(bins + 2 * half)  # padded: the kernel may reach past both ends
+    lo = bins
+    hi = -1
+    for i in range(z.shape[0]):
+        el = np.degrees(np.arctan(z[i] / (rho[i] - n)))
+        k = math.floor((el + 90.0) / 0.005)
+        if k == bins and el <= 90.0:  # the last bin is closed, as np.histogram's
+            k = bins - 1
+        if 0 <= k < bins:
+            h[k + half] += 1.0
+            lo = min(lo, k)
+            hi = max(hi, k)
+    total = 0.0
+    for j in range(max(lo - half, 0), min(hi + half, bins - 1) + 1):
+        v = 0.0
+        for t in range(kernel.shape[0]):
+            v += kernel[t] * h[j + t]
+        total += v * v
+    return total
 
 
 def beam_concentration(te: np.ndarray, beam_te: np.ndarray) -> float:
@@ -791,17 +816,29 @@ def warm_up() -> None:
     ring = np.repeat(np.arange(16), len(az))
     times = np.tile(np.linspace(0.0, 0.1, len(az), endpoint=False), 16)
     points = xyz.reshape(-1, 3)
-    order = np.random.default_rng(0).permutation(len(points))
+    n = len(points)
+    order = np.random.default_rng(0).permutation(n)
+    xyzi = np.ones((n, 4), np.float32)  # a KITTI bin: x, y, z, remission
+    xyzi[:, :3] = points
+    as_read = {  # with its label file, as the reader gives them (views of the bin's columns)
+        "xyz": xyzi[:, :3],
+        "intensity": xyzi[:, 3],
+        "gt_point_labels": np.zeros(n, np.uint8),
+        "gt_point_instance": np.zeros(n, np.uint32),
+    }
     for kwargs in (
         {"xyz": points},
         {"xyz": points, "ring": ring, "times": times},
         {"xyz": xyz.transpose(1, 0, 2).reshape(-1, 3)},
         {"xyz": points[order]},
+        as_read,
     ):
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                Organizer(source_name="warm-up").scan(**kwargs)
+                org = Organizer(source_name="warm-up")
+                for _ in range(2):  # later sweeps of a sequence take other kernels (ring order)
+                    org.scan(**kwargs)
         except DataError:
             pass
 
