@@ -675,3 +675,23 @@ def test_stems_under_a_crown_are_not_posts():
     res = classify_map(np.concatenate([ground, pts]))
     lab = res.labels[len(ground) :]
     assert (lab[: len(stem)] == L.VEGETATION).mean() > 0.6 and (lab[-len(lamp) :] == L.POLE).mean() > 0.8
+
+
+@settings(max_examples=40, deadline=None)
+@given(nx=st.integers(1, 30), ny=st.integers(1, 30), half=st.integers(0, 8), seed=st.integers(0, 2**31 - 1))
+def test_minimum_window_is_scipys_minimum_filter(nx, ny, half, seed):
+    from scipy.ndimage import minimum_filter
+
+    from prc_slam.mapclass.ground import minimum_window
+
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(nx, ny))
+    a[rng.random((nx, ny)) < 0.4] = np.inf  # empty terrain cells
+    w = 2 * half + 1
+    np.testing.assert_array_equal(minimum_window(a, w), minimum_filter(a, size=w, mode="nearest"))
+
+
+def test_column_mean_is_numpys_mean_bit_for_bit():
+    pts = RNG.normal(3e5, 1e3, size=(100_003, 3))
+    assert M._column_mean(pts).tobytes() == pts.mean(axis=0).tobytes()
+    assert M._column_mean(pts[::3]).tobytes() == np.ascontiguousarray(pts[::3]).mean(axis=0).tobytes()

@@ -24,6 +24,84 @@ def _grid_min(points, x0, y0, inv_cell, nx, ny):
 
 
 @njit(cache=True, nogil=True)
+def _min_rows(a, w, out):
+    """``out`` = minimum over windows of ``w`` (odd) rows centred on each row of ``a`` (nx, ny),
+    rows beyond the edges repeating the edge row (``scipy.ndimage.minimum_filter1d(a, w,
+    axis=0, mode="nearest")``): van Herk / Gil-Werman over blocks of ``w`` padded rows, three
+    comparisons per element whatever ``w``, whole rows at a time (memory order), two blocks of
+    scratch."""
+    nx, ny = a.shape
+    r = w // 2
+    nb = (nx + 2 * r + w - 1) // w  # blocks of padded rows (padded row k is a[clip(k - r)])
+    g = np.empty((2, w, ny))  # running minimum from each block's first row (this block, next)
+    h = np.empty((w, ny))  # ... and from its last row backwards (this block)
+
+    def prefix(b, dst):
+        for k in range(w):
+            src = a[min(max(b * w + k - r, 0), nx - 1)]
+            if k == 0:
+                dst[0] = src
+            else:
+                for j in range(ny):
+                    dst[k, j] = min(dst[k - 1, j], src[j])
+
+    prefix(0, g[0])
+    for b in range(nb):
+        for k in range(w - 1, -1, -1):
+            src = a[min(max(b * w + k - r, 0), nx - 1)]
+            if k == w - 1:
+                h[k] = src
+            else:
+                for j in range(ny):
+                    h[k, j] = min(h[k + 1, j], src[j])
+        cur, nxt = b % 2, (b + 1) % 2
+        if b + 1 < nb:
+            prefix(b + 1, g[nxt])
+        for k in range(w):
+            i = b * w + k  # out row i: padded rows i .. i + w - 1
+            if i >= nx:
+                break
+            if k == 0:
+                out[i] = g[cur, w - 1]
+            else:
+                for j in range(ny):
+                    out[i, j] = min(h[k, j], g[nxt, k - 1, j])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _min_cols(a, w, out):
+    """:func:`_min_rows` along the second axis (``minimum_filter1d(a, w, axis=1,
+    mode="nearest")``), one row at a time with row-sized scratch."""
+    nx, ny = a.shape
+    r = w // 2
+    m = ((ny + 2 * r + w - 1) // w) * w
+    g = np.empty(m)
+    h = np.empty(m)
+    for i in range(nx):
+        row = a[i]
+        for k in range(m):
+            v = row[min(max(k - r, 0), ny - 1)]
+            g[k] = v if k % w == 0 else min(g[k - 1], v)
+        for k in range(m - 1, -1, -1):
+            v = row[min(max(k - r, 0), ny - 1)]
+            h[k] = v if k % w == w - 1 else min(h[k + 1], v)
+        for j in range(ny):
+            out[i, j] = min(h[j], g[j + w - 1])
+    return out
+
+
+def minimum_window(a: np.ndarray, w: int) -> np.ndarray:
+    """``scipy.ndimage.minimum_filter(a, size=w, mode="nearest")`` of a 2-D float array for odd
+    ``w`` (the same values: a minimum does not depend on the order of its terms), by two
+    one-pass row filters instead of scipy's (0.14 s on a 4 M-cell terrain grid)."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    if w % 2 == 0 or a.ndim != 2 or a.size == 0:
+        return minimum_filter(a, size=w, mode="nearest")
+    return _min_cols(_min_rows(a, w, np.empty_like(a)), w, np.empty_like(a))
+
+
+@njit(cache=True, nogil=True)
 def _xy_bounds(points):
     """Minimum and maximum of x and y (``points[:, :2].min(axis=0)``, ``.max(axis=0)`` in one
     pass; numpy's column reductions of an (N, 3) array are ~10x slower)."""
@@ -130,7 +208,7 @@ def detect_ground(
     nx, ny = (np.floor((hi - lo) / cell).astype(np.int64) + 2).tolist()  # +1 spare for rounding
     zmin = _grid_min(pts, lo[0], lo[1], 1.0 / cell, nx, ny)
     w = 2 * int(np.ceil(local_radius / cell)) + 1
-    zlocal = minimum_filter(zmin, size=w, mode="nearest")
+    zlocal = minimum_window(zmin, w)
     votes = scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local)
     ground_cell = votes > len(DIRECTIONS) - votes
     return _point_mask(pts, lo[0], lo[1], 1.0 / cell, zmin, ground_cell, tolerance)
