@@ -218,6 +218,34 @@ def test_labels_follow_the_beams_not_the_row_order():
     assert (la[ident == 1] == L.VEHICLE).mean() > 0.8
 
 
+def test_curbs_follow_the_beams_not_the_row_order():
+    """The same for curbs: region growing and the curvature of short regions take neighbouring
+    beams, not neighbouring rows of the reader's order."""
+    sidewalk = ((-40.0, 6.0, -MOUNT - 1.0), (40.0, 11.0, -MOUNT + 0.13), 7)
+    scan, _ = sweep([sidewalk, ((8.0, 3.0, -MOUNT), (9.0, 3.4, -MOUNT + 0.12), 7)], cols=2048, noise=0.005)
+    perm = np.random.default_rng(5).permutation(scan.shape[0])
+    shuffled = Scan(scan.ranges[perm], SpinningSensor.create(scan.sensor.altitude[perm], scan.sensor.cols))
+    a, b = OnlineDetector(), OnlineDetector()
+    a.process(scan), b.process(shuffled)
+    la, lb = a.process(scan).labels, b.process(shuffled).labels
+    assert (la == L.CURB).sum() > 20
+    np.testing.assert_array_equal(la[perm], lb)
+
+
+def test_the_line_before_is_the_next_beam_up():
+    """Sec. 6's curvature of short curb regions is taken between a return and the one on the beam
+    above it: by elevation for a spinning sensor (rows in any order), the previous row otherwise."""
+    from prc_slam.online.curb import _line_before
+
+    cols = 5
+    mixed = Scan(np.ones((4, cols), np.float32), SpinningSensor.create(np.radians([0.0, 10.0, -10.0, 5.0]), cols))
+    slots = np.array([0, 7, 10, 18, 5])  # rows 0, 1, 2, 3 and row 1 again
+    # top-first rows are 1, 3, 0, 2: above row 0 is row 3, above 2 is 0, above 3 is 1, row 1 is the top
+    np.testing.assert_array_equal(_line_before(mixed, slots), [15, 7, 0, 8, 5])
+    top_first = Scan(np.ones((4, cols), np.float32), SpinningSensor.create(np.radians([10.0, 5.0, 0.0, -10.0]), cols))
+    np.testing.assert_array_equal(_line_before(top_first, slots), [0, 2, 5, 13, 0])
+
+
 def test_an_empty_sweep_labels_nothing():
     model = sensor(16, 360)
     res = OnlineDetector().process(Scan(np.zeros((16, 360), np.float32), model))

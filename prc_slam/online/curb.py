@@ -164,14 +164,26 @@ def detect_curbs(
         is_short[short] = True
         members = np.flatnonzero(is_short[lab])  # the slots of these regions only
         sv = coarse.sv.ravel()
-        cols = scan.shape[1]
-        above = np.where(members >= cols, members - cols, members)  # the row before (the first: itself)
-        curv = np.abs(sv[members] - sv[above])  # |diff| along axis 0, as np.diff with sv[:1] prepended
+        curv = np.abs(sv[members] - sv[_line_before(scan, members)])  # as np.diff along axis 0, sv[:1] prepended
         median = group_medians(lab[members], curv, short).astype(curv.dtype)  # float32, as np.median gives
         ok[short] = (size[short] >= 3) & (median <= p.max_curvature)
     ok[0] = False
     mask = ok[regions]
     return CurbResult(mask, _polylines(regions, ok, _line_index(scan), xyz), possible)
+
+
+def _line_before(scan: Scan, slots: np.ndarray) -> np.ndarray:
+    """The slot in the row before each of ``slots`` (the first row: the slot itself): for a
+    spinning sensor the next beam up, whatever order the reader gave the rows in (readers give
+    them top beam first: the row above); for a profiler the previous scan line of the stream."""
+    rows, cols = scan.shape
+    r, c = np.divmod(slots, cols)
+    if isinstance(scan.sensor, SpinningSensor):
+        down = np.argsort(-np.asarray(scan.sensor.altitude, dtype=np.float64), kind="stable")  # top first
+        prev = np.empty(rows, np.int64)
+        prev[down] = np.concatenate([down[:1], down[:-1]])
+        return prev[r] * cols + c
+    return np.where(r > 0, slots - cols, slots)
 
 
 @njit(cache=True, nogil=True)
