@@ -95,15 +95,15 @@ def _rehash32(coords, nv, size):
 
 
 @njit(cache=True, nogil=True)
-def _build32(points, inv_size, flat, offset):
+def _build32(points, inv_size, flat, offset, voxel, coords):
     """:func:`_build` with int32 voxel coordinates and table (half the memory a probe reads:
     1.3-1.7x faster on grids of millions of voxels); the same voxels, order and table slots.
-    ``ok`` is False (and the rest unusable) when a voxel coordinate does not fit int32."""
+    Fills ``voxel`` (N,) and the first rows of ``coords`` (N, 3) int32, allocated by the caller
+    (numpy: huge pages); returns the number of voxels, the table and ``ok``, False (the rest
+    unusable) when a voxel coordinate does not fit int32."""
     n = points.shape[0]
     size = 1024
     table = np.full(size, -1, np.int32)
-    coords = np.empty((max(n, 1), 3), np.int32)
-    voxel = np.empty(n, np.int64)
     nv = 0
     u = -1
     for i in range(n):
@@ -114,7 +114,7 @@ def _build32(points, inv_size, flat, offset):
             voxel[i] = u
             continue
         if not (_I32_LO <= x <= _I32_HI and _I32_LO <= y <= _I32_HI and _I32_LO <= z <= _I32_HI):
-            return voxel, np.zeros((0, 3), np.int64), table, False
+            return 0, table, False
         mask = size - 1
         h = _slot(x, y, z, mask)
         while True:
@@ -133,18 +133,17 @@ def _build32(points, inv_size, flat, offset):
             h = (h + 1) & mask
         voxel[i] = v
         u = v
-    return voxel, coords[:nv].astype(np.int64), table, True
+    return nv, table, True
 
 
 @njit(cache=True, nogil=True)
-def _counts(points, inv_size, offset):
+def _counts(points, inv_size, offset, coords, counts):
     """Points per voxel of the grid :func:`_build32` makes of ``points + offset`` (same voxels,
-    same order), without the per-point voxel index; ``ok`` as there."""
+    same order), without the per-point voxel index: the first rows of ``coords`` (N, 3) int32
+    and ``counts`` (N,) filled; returns their number and ``ok`` as there."""
     n = points.shape[0]
     size = 1024
     table = np.full(size, -1, np.int32)
-    coords = np.empty((max(n, 1), 3), np.int32)
-    counts = np.zeros(max(n, 1), np.int64)
     nv = 0
     u = -1
     for i in range(n):
@@ -155,7 +154,7 @@ def _counts(points, inv_size, offset):
             counts[u] += 1
             continue
         if not (_I32_LO <= x <= _I32_HI and _I32_LO <= y <= _I32_HI and _I32_LO <= z <= _I32_HI):
-            return counts[:0].copy(), False
+            return 0, False
         mask = size - 1
         h = _slot(x, y, z, mask)
         while True:
@@ -163,6 +162,7 @@ def _counts(points, inv_size, offset):
             if v < 0:
                 table[h] = nv
                 coords[nv, 0], coords[nv, 1], coords[nv, 2] = x, y, z
+                counts[nv] = 0
                 v = nv
                 nv += 1
                 if 2 * nv > size:
@@ -174,32 +174,34 @@ def _counts(points, inv_size, offset):
             h = (h + 1) & mask
         counts[v] += 1
         u = v
-    return counts[:nv].copy(), True
+    return nv, True
 
 
 def voxel_counts(points: np.ndarray, size: float, offset: float = 0.0) -> np.ndarray:
     """``VoxelGrid.build(points, size, offset=offset).counts`` without the rest of the grid."""
     pts = np.asarray(points, dtype=np.float64)
-    counts, ok = _counts(pts, 1.0 / size, float(offset)) if len(pts) < 2**31 else (None, False)
-    return counts if ok else VoxelGrid.build(pts, size, offset=offset).counts
+    if len(pts) < 2**31:
+        counts = np.empty(max(len(pts), 1), np.int64)
+        nv, ok = _counts(pts, 1.0 / size, float(offset), np.empty((max(len(pts), 1), 3), np.int32), counts)
+        if ok:
+            return counts[:nv].copy()
+    return VoxelGrid.build(pts, size, offset=offset).counts
 
 
 @njit(cache=True, nogil=True)
-def _build_plane(points, inv_size, ix0, iy0, nx, ny):
-    """Flat grid (x-y cells, z index 0) through a dense ``nx * ny`` array of cell indices over
-    the cells ``ix0.., iy0..``: the cells of :func:`_build` (``flat``), numbered in the same
-    order of first appearance, without hashing. ``ok`` is False when a point falls outside."""
+def _build_plane(points, inv_size, ix0, iy0, nx, ny, dense, voxel, coords):
+    """Flat grid (x-y cells, z index 0) through a dense ``nx * ny`` array of cell indices
+    (``dense``, all -1) over the cells ``ix0.., iy0..``: the cells of :func:`_build` (``flat``),
+    numbered in the same order of first appearance, without hashing; fills ``voxel`` and the
+    first rows of ``coords``. Returns their number and ``ok``, False when a point falls outside."""
     n = points.shape[0]
-    dense = np.full(nx * ny, -1, np.int32)
-    coords = np.empty((max(n, 1), 3), np.int64)  # not zeroed: untouched pages stay unmapped
-    voxel = np.empty(n, np.int64)
     nv = 0
     for i in range(n):
         x = np.int64(np.floor(points[i, 0] * inv_size))
         y = np.int64(np.floor(points[i, 1] * inv_size))
         a, b = x - ix0, y - iy0
         if a < 0 or a >= nx or b < 0 or b >= ny:
-            return voxel, coords[:0].copy(), dense, False
+            return 0, False
         k = a * ny + b
         v = dense[k]
         if v < 0:
@@ -208,7 +210,7 @@ def _build_plane(points, inv_size, ix0, iy0, nx, ny):
             coords[v, 0], coords[v, 1], coords[v, 2] = x, y, 0
             nv += 1
         voxel[i] = v
-    return voxel, coords[:nv].copy(), dense, True
+    return nv, True
 
 
 @njit(cache=True, nogil=True)
@@ -228,6 +230,13 @@ def _plane_bounds(points, inv_size):
         np.int64(np.floor(lo0 * inv_size)), np.int64(np.floor(lo1 * inv_size)),
         np.int64(np.floor(hi0 * inv_size)), np.int64(np.floor(hi1 * inv_size)), True,
     )  # fmt: skip
+
+
+def _rows(n: int, dtype=np.int64) -> np.ndarray:
+    """Room for up to ``n`` voxel coordinates (N, 3), allocated by numpy (huge pages on large
+    arrays; numba's allocations get 4 kB pages, whose first touch costs ~4x more); the pages
+    a kernel leaves untouched are never mapped."""
+    return np.empty((max(n, 1), 3), dtype)
 
 
 def _table_size(nv: int) -> int:
@@ -476,11 +485,11 @@ def _merge_neighbours(coords):
 
 
 @njit(cache=True, nogil=True)
-def _merge_sum(coords, values):
+def _merge_sum(coords, values, out):
     """:func:`_neighbourhood_sum` (radius 1) by one merge walk, without lists (same order of
-    addition, so bit-identical). ``ok`` is False when the keys would overflow."""
+    addition, so bit-identical), added into ``out`` (zeros). ``ok`` is False when the keys
+    would overflow."""
     nv, m = values.shape
-    out = np.zeros((nv, m))
     order, sk, offs = _sorted_keys(coords)
     if len(order) < nv:
         return out, False
@@ -521,11 +530,10 @@ def _hash_neighbours(table, coords):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _lists_sum(start, nbr, values):
-    """Sums over the neighbour lists; voxels are independent (parallel loop, each sum added
-    in list order: the result does not depend on the thread count)."""
+def _lists_sum(start, nbr, values, out):
+    """Sums over the neighbour lists into ``out`` (zeros); voxels are independent (parallel
+    loop, each sum added in list order: the result does not depend on the thread count)."""
     nv, m = values.shape
-    out = np.zeros((nv, m))
     for v in prange(nv):
         for j in range(start[v], start[v + 1]):
             u = nbr[j]
@@ -590,13 +598,17 @@ class VoxelGrid:
             x0, y0, x1, y1, ok = _plane_bounds(pts, 1.0 / size)
             nx, ny = x1 - x0 + 1, y1 - y0 + 1
             if ok and float(nx) * float(ny) <= PLANE_CELLS_PER_POINT * len(pts) + 4096 and len(pts) < 2**31:
-                voxel, coords, cells, ok = _build_plane(pts, 1.0 / size, x0, y0, nx, ny)
+                cells, voxel, coords = np.full(nx * ny, -1, np.int32), np.empty(len(pts), np.int64), _rows(len(pts))
+                nv, ok = _build_plane(pts, 1.0 / size, x0, y0, nx, ny, cells, voxel, coords)
                 if ok:
                     plane = (cells, x0, y0, nx, ny)
-                    return cls(size, voxel, coords, None, np.bincount(voxel, minlength=len(coords)), plane=plane)
+                    coords = coords[:nv].copy()
+                    return cls(size, voxel, coords, None, np.bincount(voxel, minlength=nv), plane=plane)
         ok = False
         if len(pts) < 2**31:
-            voxel, coords, table, ok = _build32(pts, 1.0 / size, flat, float(offset))
+            voxel, coords = np.empty(len(pts), np.int64), _rows(len(pts), np.int32)
+            nv, table, ok = _build32(pts, 1.0 / size, flat, float(offset), voxel, coords)
+            coords = coords[:nv].astype(np.int64)
         if not ok:
             voxel, coords, table = _build(pts, 1.0 / size, flat, float(offset))
         return cls(size, voxel, coords, table, np.bincount(voxel, minlength=len(coords)))
@@ -649,9 +661,9 @@ class VoxelGrid:
         flat = v.reshape(v.shape[0], int(np.prod(v.shape[1:])))
         ok = False
         if radius == 1 and self._lists is not None:
-            out, ok = _lists_sum(*self._lists, flat), True
+            out, ok = _lists_sum(*self._lists, flat, np.zeros(flat.shape)), True
         elif radius == 1 and self.n_voxels > MERGE_MIN_VOXELS:
-            out, ok = _merge_sum(self.coords, flat)
+            out, ok = _merge_sum(self.coords, flat, np.zeros(flat.shape))
         if not ok:
             out = _neighbourhood_sum(self.table, self.coords, flat, radius)
         return out.reshape(v.shape)

@@ -117,14 +117,19 @@ def _eigh3(a, v, w):
     return r[12]
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _normals_from_sums(sums):
+def _normals_from_sums(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Normal (smallest eigenvector) and curvature λ0/(λ0+λ1+λ2) from (count, Σx, Σxxᵀ) rows;
-    NaN normal and curvature 1 where fewer than 3 points or a degenerate (line-like) spread.
-    Rows are independent (parallel loop; the result does not depend on the thread count)."""
+    NaN normal and curvature 1 where fewer than 3 points or a degenerate (line-like) spread."""
+    normals, curvature = np.full((len(sums), 3), np.nan), np.ones(len(sums))
+    _fill_normals(sums, normals, curvature)
+    return normals, curvature
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _fill_normals(sums, normals, curvature):
+    """:func:`_normals_from_sums` into ``normals`` (NaN) and ``curvature`` (ones). Rows are
+    independent (parallel loop; the result does not depend on the thread count)."""
     n = sums.shape[0]
-    normals = np.full((n, 3), np.nan)
-    curvature = np.ones(n)
     for i in prange(n):
         c = sums[i, 0]
         if c < 3:
@@ -153,7 +158,6 @@ def _normals_from_sums(sums):
             continue
         normals[i, 0], normals[i, 1], normals[i, 2] = n0, n1, n2
         curvature[i] = max(w0, 0.0) / total
-    return normals, curvature
 
 
 def _column_mean(points: np.ndarray) -> np.ndarray:
@@ -174,10 +178,13 @@ def _row_sum(points):
     return np.array([s0, s1, s2])
 
 
-@njit(cache=True, nogil=True)
 def _voxel_moments(points, centre, voxel, n_voxels):
     """Rows (count, Σx, Σy, Σz, Σxx, Σxy, Σxz, Σyy, Σyz, Σzz) per voxel, about ``centre``."""
-    out = np.zeros((n_voxels, 10))
+    return _add_moments(points, centre, voxel, np.zeros((n_voxels, 10)))
+
+
+@njit(cache=True, nogil=True)
+def _add_moments(points, centre, voxel, out):
     for i in range(points.shape[0]):
         x, y, z = points[i, 0] - centre[0], points[i, 1] - centre[1], points[i, 2] - centre[2]
         r = out[voxel[i]]
@@ -395,11 +402,13 @@ def verticality(
     rows = np.arange(len(voxel)) if rows is None else np.asarray(rows)
     if normal_of is None:
         normal_of = np.arange(len(rows))
-    return _verticality(normals, np.asarray(normal_of), voxel, rows, n_voxels, np.cos(np.radians(80.0)))
+    out = np.empty(len(rows))
+    _verticality(normals, np.asarray(normal_of), voxel, rows, n_voxels, np.cos(np.radians(80.0)), out)
+    return out
 
 
 @njit(cache=True, nogil=True)
-def _verticality(normals, normal_of, voxel, rows, n_voxels, cos80):
+def _verticality(normals, normal_of, voxel, rows, n_voxels, cos80, out):
     n = rows.shape[0]
     counts = np.zeros(n_voxels, np.int64)
     facing = np.zeros(n_voxels)
@@ -408,11 +417,9 @@ def _verticality(normals, normal_of, voxel, rows, n_voxels, cos80):
         counts[v] += 1
         if abs(normals[normal_of[i], 2]) < cos80:  # False for NaN
             facing[v] += 1.0
-    out = np.empty(n)
     for i in range(n):
         v = voxel[rows[i]]
         out[i] = facing[v] / max(counts[v], 1)
-    return out
 
 
 @njit(cache=True, nogil=True)
