@@ -372,86 +372,106 @@ def group_members(keys, n_groups):
     return start, members
 
 
-@njit(cache=True, nogil=True)
-def radix_argsort(keys):
+def radix_argsort(keys: np.ndarray) -> np.ndarray:
     """Argsort of non-negative int64 keys (LSD radix sort, 16-bit digits; stable). O(N) per
     16 bits of the largest key."""
-    n = keys.shape[0]
-    order = np.arange(n)
+    return _radix_sort(np.asarray(keys, dtype=np.int64))[0]
+
+
+def _radix_sort(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The stable argsort of non-negative int64 ``keys`` and the sorted keys: LSD radix sort
+    with 16-bit digits, the keys carried along with their indices (each pass reads both in
+    order), scratch allocated by numpy (huge pages). The permutation of a stable sort is
+    unique: the same as ``np.argsort(keys, kind="mergesort")``."""
+    n = len(keys)
     if n < 4096:
-        return np.argsort(keys, kind="mergesort")
-    kmax = keys.max()
-    tmp = np.empty(n, np.int64)
+        order = np.argsort(keys, kind="mergesort")
+        return order, keys[order]
+    k1, k2 = keys.copy(), np.empty(n, np.int64)
+    i1, i2 = np.arange(n, dtype=np.int64), np.empty(n, np.int64)
+    flip = _radix_passes(k1, i1, k2, i2)
+    return (i2, k2) if flip else (i1, k1)
+
+
+@njit(cache=True, nogil=True)
+def _radix_passes(k1, i1, k2, i2):
+    """Radix passes from (``k1``, ``i1``) into (``k2``, ``i2``) and back, 16 bits at a time up
+    to the largest key; True when the result ended in (``k2``, ``i2``)."""
+    n = k1.shape[0]
+    kmax = k1.max()
     cnt = np.empty(65537, np.int64)
     shift = 0
+    flip = False
     while (kmax >> shift) > 0:
         cnt[:] = 0
         for i in range(n):
-            cnt[((keys[order[i]] >> shift) & 0xFFFF) + 1] += 1
+            cnt[((k1[i] >> shift) & 0xFFFF) + 1] += 1
         for d in range(65536):
             cnt[d + 1] += cnt[d]
         for i in range(n):
-            o = order[i]
-            d = (keys[o] >> shift) & 0xFFFF
-            tmp[cnt[d]] = o
-            cnt[d] += 1
-        order, tmp = tmp, order
+            d = (k1[i] >> shift) & 0xFFFF
+            j = cnt[d]
+            k2[j] = k1[i]
+            i2[j] = i1[i]
+            cnt[d] = j + 1
+        k1, k2 = k2, k1
+        i1, i2 = i2, i1
+        flip = not flip
         shift += 16
-    return order
+    return flip
 
 
 @njit(cache=True, nogil=True)
-def _linear_keys(coords):
+def _linear_keys(coords, keys):
     """Linear key ``((x+1) ny + y+1) nz + z+1`` (offsets from the minimum, one spare layer each
-    side) of every voxel, and ``ny``, ``nz``; ``ny = -1`` when the keys would overflow int64."""
+    side) of every voxel into ``keys``; returns ``ny``, ``nz``, ``ny = -1`` when the keys would
+    overflow int64."""
     nv = coords.shape[0]
-    keys = np.empty(nv, np.int64)
     if nv == 0:
-        return keys, 1, 1
+        return 1, 1
     lo0, lo1, lo2 = coords[:, 0].min(), coords[:, 1].min(), coords[:, 2].min()
     nx = coords[:, 0].max() - lo0 + 3
     ny = coords[:, 1].max() - lo1 + 3
     nz = coords[:, 2].max() - lo2 + 3
     if float(nx) * float(ny) * float(nz) >= 2.0**62:
-        return keys, -1, -1
+        return -1, -1
     for v in range(nv):
         keys[v] = ((coords[v, 0] - lo0 + 1) * ny + (coords[v, 1] - lo1 + 1)) * nz + (coords[v, 2] - lo2 + 1)
-    return keys, ny, nz
+    return ny, nz
 
 
-@njit(cache=True, nogil=True)
-def _sorted_keys(coords):
+def _sorted_keys(coords: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Voxels sorted by linear key: the order, the sorted keys and the key offsets of the nine
-    (dx, dy) columns around a voxel (dx, then dy ascending); an empty order when the keys would
-    overflow."""
-    nv = coords.shape[0]
-    keys, ny, nz = _linear_keys(coords)
-    offs = np.empty(9, np.int64)
+    (dx, dy) columns around a voxel (dx, then dy ascending); None when the keys would overflow."""
+    keys = np.empty(len(coords), np.int64)
+    ny, nz = _linear_keys(coords, keys)
     if ny < 0:
-        return np.zeros(0, np.int64), keys, offs
-    order = radix_argsort(keys)
-    sk = np.empty(nv, np.int64)
-    for i in range(nv):
-        sk[i] = keys[order[i]]
-    k = 0
-    for dx in range(-1, 2):
-        for dy in range(-1, 2):
-            offs[k] = dx * ny * nz + dy * nz
-            k += 1
+        return None
+    order, sk = _radix_sort(keys)
+    offs = np.array([dx * ny * nz + dy * nz for dx in (-1, 0, 1) for dy in (-1, 0, 1)], np.int64)
     return order, sk, offs
 
 
-@njit(cache=True, nogil=True)
-def _merge_neighbours(coords):
+def _merge_neighbours(coords: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """3x3x3 neighbour lists (CSR, the voxel itself included) in the order of
     :func:`_neighbours` without the empty slots: a merge walk over the voxels sorted by linear
     key, one monotone pointer per (dx, dy) column. ``start`` is empty when the keys overflow."""
-    nv = coords.shape[0]
-    order, sk, offs = _sorted_keys(coords)
-    if len(order) < nv:
+    nv = len(coords)
+    sorted_keys = _sorted_keys(coords)
+    if sorted_keys is None:
         return np.zeros(0, np.int64), np.zeros(0, np.int32)
     # pass 1: list lengths; pass 2: the lists, each at its voxel's place in input order
     start = np.zeros(nv + 1, np.int64)
+    _merge_lengths(*sorted_keys, start)
+    nbr = np.empty(start[nv], np.int32)
+    _merge_lists(*sorted_keys, start, nbr)
+    return start, nbr
+
+
+@njit(cache=True, nogil=True)
+def _merge_lengths(order, sk, offs, start):
+    """Pass 1 of :func:`_merge_neighbours`: ``start`` (zeros) as the lists' offsets."""
+    nv = order.shape[0]
     ptr = np.zeros(9, np.int64)
     for i in range(nv):
         m = 0
@@ -467,8 +487,13 @@ def _merge_neighbours(coords):
         start[order[i] + 1] = m
     for v in range(nv):
         start[v + 1] += start[v]
-    nbr = np.empty(start[nv], np.int32)
-    ptr[:] = 0
+
+
+@njit(cache=True, nogil=True)
+def _merge_lists(order, sk, offs, start, nbr):
+    """Pass 2 of :func:`_merge_neighbours`: the lists into ``nbr``."""
+    nv = order.shape[0]
+    ptr = np.zeros(9, np.int64)
     for i in range(nv):
         a = start[order[i]]
         for o in range(9):
@@ -481,18 +506,22 @@ def _merge_neighbours(coords):
                 nbr[a] = order[p]
                 a += 1
                 p += 1
-    return start, nbr
 
 
-@njit(cache=True, nogil=True)
-def _merge_sum(coords, values, out):
+def _merge_sum(coords: np.ndarray, values: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, bool]:
     """:func:`_neighbourhood_sum` (radius 1) by one merge walk, without lists (same order of
     addition, so bit-identical), added into ``out`` (zeros). ``ok`` is False when the keys
     would overflow."""
-    nv, m = values.shape
-    order, sk, offs = _sorted_keys(coords)
-    if len(order) < nv:
+    sorted_keys = _sorted_keys(coords)
+    if sorted_keys is None:
         return out, False
+    _merge_sum_walk(*sorted_keys, values, out)
+    return out, True
+
+
+@njit(cache=True, nogil=True)
+def _merge_sum_walk(order, sk, offs, values, out):
+    nv, m = values.shape
     ptr = np.zeros(9, np.int64)
     for i in range(nv):
         v = order[i]
@@ -507,7 +536,6 @@ def _merge_sum(coords, values, out):
                 for c in range(m):
                     out[v, c] += values[u, c]
                 p += 1
-    return out, True
 
 
 @njit(cache=True, nogil=True)

@@ -230,25 +230,32 @@ def region_growing(normals, curvature, neighbours, cos_theta, max_curvature):
     return region_growing_lists(normals, curvature, start, nb[keep].astype(np.int64), cos_theta, max_curvature)
 
 
-@njit(cache=True, nogil=True)
-def stable_argsort(key):
+def stable_argsort(key: np.ndarray) -> np.ndarray:
     """``np.argsort(key, kind="mergesort")`` of float64 keys without NaN: an LSD radix sort
     (16-bit digits, indices carried along, passes whose digit is the same for all keys skipped)
     of the keys' bit patterns mapped to unsigned order (-0.0 taken as 0.0, as a comparison sort
-    sees them). Equal keys keep their input order, so the result is the mergesort's."""
-    n = key.shape[0]
+    sees them). Equal keys keep their input order, so the result is the mergesort's. Scratch
+    allocated by numpy (huge pages on large arrays)."""
+    key = np.asarray(key, dtype=np.float64)
+    n = len(key)
     if n < 4096 or np.isnan(key).any():
         return np.argsort(key, kind="mergesort")
+    k1, k2 = np.empty(n, np.uint64), np.empty(n, np.uint64)
+    i1, i2 = np.arange(n, dtype=np.int64), np.empty(n, np.int64)
+    return i2 if _float_radix_passes(key, k1, i1, k2, i2) else i1
+
+
+@njit(cache=True, nogil=True)
+def _float_radix_passes(key, k1, i1, k2, i2):
+    """The passes of :func:`stable_argsort`; True when the order ended in ``i2``."""
+    n = key.shape[0]
     bits = (key + 0.0).view(np.uint64)  # + 0.0: -0.0 -> 0.0
     sign = np.uint64(1) << np.uint64(63)
-    k1 = np.empty(n, np.uint64)
     for i in range(n):
         b = bits[i]
         k1[i] = ~b if b & sign else b | sign
-    i1 = np.arange(n)
-    k2 = np.empty(n, np.uint64)
-    i2 = np.empty(n, np.int64)
     cnt = np.empty(65536, np.int64)
+    flip = False
     for shift in range(0, 64, 16):
         sh = np.uint64(shift)
         cnt[:] = 0
@@ -269,20 +276,28 @@ def stable_argsort(key):
             cnt[d] = j + 1
         k1, k2 = k2, k1
         i1, i2 = i2, i1
-    return i1
+        flip = not flip
+    return flip
 
 
-@njit(cache=True, nogil=True)
 def region_growing_lists(normals, curvature, start, neighbours, cos_theta, max_curvature):
     """:func:`region_growing` with the neighbours of unit ``u`` in
     ``neighbours[start[u]:start[u + 1]]`` (CSR lists, e.g. :meth:`VoxelGrid.neighbour_lists`),
     visited in list order."""
-    n = normals.shape[0]
+    n = len(normals)
     valid = ~np.isnan(normals[:, 0])
-    key = np.where(valid, curvature, np.inf)
-    order = stable_argsort(key)
+    order = stable_argsort(np.where(valid, curvature, np.inf))
     seg = np.full(n, -1, np.int64)
-    queue = np.empty(n, np.int64)
+    ns = _grow(
+        normals, curvature, start, neighbours, cos_theta, max_curvature, valid, order, seg, np.empty(n, np.int64)
+    )
+    return seg, ns
+
+
+@njit(cache=True, nogil=True)
+def _grow(normals, curvature, start, neighbours, cos_theta, max_curvature, valid, order, seg, queue):
+    """The growth of :func:`region_growing_lists` into ``seg`` (all -1); the segment count."""
+    n = normals.shape[0]
     ns = 0
     for o in range(n):
         s0 = order[o]
@@ -309,7 +324,7 @@ def region_growing_lists(normals, curvature, start, neighbours, cos_theta, max_c
                         queue[tail] = q
                         tail += 1
         ns += 1
-    return seg, ns
+    return ns
 
 
 def voxel_normals(points: np.ndarray, voxel: float) -> tuple[VoxelGrid, np.ndarray, np.ndarray]:
