@@ -695,3 +695,21 @@ def test_column_mean_is_numpys_mean_bit_for_bit():
     pts = RNG.normal(3e5, 1e3, size=(100_003, 3))
     assert M._column_mean(pts).tobytes() == pts.mean(axis=0).tobytes()
     assert M._column_mean(pts[::3]).tobytes() == np.ascontiguousarray(pts[::3]).mean(axis=0).tobytes()
+
+
+def test_side_by_side_results_in_order_and_errors_raised(monkeypatch):
+    import numba
+
+    from prc_slam.mapclass.threads import side_by_side
+
+    for threads in (1, 2):
+        monkeypatch.setattr(numba, "get_num_threads", lambda threads=threads: threads)
+        out, sec = side_by_side(lambda: 1, lambda: np.arange(3), lambda: "c")
+        assert out[0] == 1 and out[2] == "c" and list(out[1]) == [0, 1, 2]
+        assert len(sec) == 3 and min(sec) >= 0
+
+        def boom():
+            raise ValueError("boom")
+
+        with pytest.raises(ValueError, match="boom"):
+            side_by_side(lambda: 1, boom)

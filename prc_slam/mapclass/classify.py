@@ -38,6 +38,7 @@ from prc_slam.mapclass.objects import (
     segment_voxels,
     under_crown,
 )
+from prc_slam.mapclass.threads import side_by_side
 
 
 class _Params(BaseModel):
@@ -179,6 +180,13 @@ class _Clock:
         now = time.perf_counter()
         self.seconds[name] = self.seconds.get(name, 0.0) + now - self.t
         self.t = now
+
+    def record(self, seconds: dict[str, float]) -> None:
+        """Stages that ran side by side: each its own seconds (together more than the time
+        since the last lap); the clock restarts."""
+        for name, sec in seconds.items():
+            self.seconds[name] = self.seconds.get(name, 0.0) + sec
+        self.t = time.perf_counter()
 
 
 def classify_map(points: np.ndarray, config: MapClassConfig | None = None) -> MapResult:
@@ -371,35 +379,45 @@ def _classify_finite(
     if cfg.normals == "voxels":
         grid, normals, curv_v = M.voxel_normals(p, scale.normal_voxel)
         normal_of = grid.voxel  # every point takes its voxel's normal
-        clock.lap("normals")
-        seg_v = M.voxel_segments(grid, normals, curv_v, cfg.theta_deg, cfg.max_curvature)
-        seg, tiny = _voxel_segment_per_point(seg_v, grid.voxel)
     else:
         normals, curv, nb = M.knn_normals(p, cfg.knn, cfg.knn_radius)
         normal_of = None
-        clock.lap("normals")
-        seg, ns = M.region_growing(normals, curv, nb, np.cos(np.radians(cfg.theta_deg)), cfg.max_curvature)
-        tiny = segment_voxels(p, seg, ns, scale.normal_voxel)[seg] <= 2
-    _scatter(segment, idx, seg)
-    clock.lap("segmentation")
+    clock.lap("normals")
+
+    def segmentation() -> tuple[np.ndarray, np.ndarray]:
+        if cfg.normals == "voxels":
+            seg_v = M.voxel_segments(grid, normals, curv_v, cfg.theta_deg, cfg.max_curvature)
+            seg, tiny = _voxel_segment_per_point(seg_v, grid.voxel)
+        else:
+            seg, ns = M.region_growing(normals, curv, nb, np.cos(np.radians(cfg.theta_deg)), cfg.max_curvature)
+            tiny = segment_voxels(p, seg, ns, scale.normal_voxel)[seg] <= 2
+        _scatter(segment, idx, seg)
+        return seg, tiny
+
+    def ground_mask() -> np.ndarray:  # Sec. 4.1 ground (needs nothing of the segmentation)
+        g = cfg.ground
+        return detect_ground(
+            p, scale.ground_cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance
+        )
+
+    ((seg, tiny), ground), (t_seg, t_ground) = side_by_side(segmentation, ground_mask)
+    clock.record({"segmentation": t_seg})
     # Sec. 3.4 verticality on the density voxels (inliers only)
     v = M.verticality(normals, dgrid.voxel, dgrid.n_voxels, normal_of, idx)
     _scatter(vert, idx, v)
     clock.lap("verticality")
-    # Sec. 4.1 ground
-    g = cfg.ground
-    ground = detect_ground(
-        p, scale.ground_cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance
-    )
+    t = time.perf_counter()
     ground_pts, idx, p, seg, v, tiny = _split_ground(ground, labels, L.GROUND, idx, p, seg, v, tiny)
     scene = p
-    clock.lap("ground")
+    clock.record({"ground": t_ground + time.perf_counter() - t})
     # foliage: where most points lie in segments of at most two normal voxels (see
-    # MapClassConfig.foliage_share); posts: the Sec. 4.4 test on everything left
+    # MapClassConfig.foliage_share); posts: the Sec. 4.4 test on everything left (side by side)
     e, q = cfg.vegetation, cfg.post
     coarse = scale.normal_voxel / cfg.normal_voxel  # > 1 on clouds sparser than the paper's
-    foliage = M.fragmentation(p, tiny, cfg.foliage_voxel * coarse) >= cfg.foliage_share
-    post = detect_posts(p, seg, q.voxel, q.min_voxel_points, q.max_extent, q.min_height, cfg.small_segment_points)
+    (foliage, post), _ = side_by_side(
+        lambda: M.fragmentation(p, tiny, cfg.foliage_voxel * coarse) >= cfg.foliage_share,
+        lambda: detect_posts(p, seg, q.voxel, q.min_voxel_points, q.max_extent, q.min_height, cfg.small_segment_points),
+    )
     clock.lap("foliage_posts")
     # Sec. 4.2-4.5, each on what the previous steps left
     b, c = cfg.building, cfg.vehicle

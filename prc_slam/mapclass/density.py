@@ -17,9 +17,11 @@ absolute threshold.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
+from prc_slam.mapclass.threads import side_by_side
 from prc_slam.voxels import voxel_counts
 
 
@@ -33,9 +35,8 @@ def surface_density(points: np.ndarray, voxel: float = 1.0, min_count: float = 8
         return 0.0
     rho = 0.0
     for _ in range(3):
-        count = 0.0
-        for shift in (0.0, 0.5 * voxel):
-            count = max(count, point_median(voxel_counts(pts, voxel, offset=shift)))
+        counts, _ = side_by_side(*(partial(voxel_counts, pts, voxel, offset=shift) for shift in (0.0, 0.5 * voxel)))
+        count = max(0.0, *(point_median(c) for c in counts))
         rho = count / voxel**2
         if count >= min_count or voxel >= 8.0:
             break

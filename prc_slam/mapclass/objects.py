@@ -12,7 +12,7 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from prc_slam.mapclass.metrics import segment_density
-from prc_slam.voxels import VoxelGrid, find, find_cell, group_members
+from prc_slam.voxels import VoxelGrid, find, find_cell, group_members, voxel_counts
 
 
 @njit(cache=True, nogil=True)
@@ -617,7 +617,7 @@ def detect_vegetation(
     if len(points) == 0:
         return np.zeros(0, dtype=bool)
     density, grid = segment_density(points, segment, voxel)
-    n_scene = VoxelGrid.build(scene_points, voxel).n_voxels if len(scene_points) else grid.n_voxels
+    n_scene = len(voxel_counts(scene_points, voxel)) if len(scene_points) else grid.n_voxels
     high = density >= factor * density.sum() / max(n_scene, 1)
     similar = grid.neighbourhood_sum(high.astype(float)) - high
     return (high & (similar >= min_similar))[grid.voxel]
