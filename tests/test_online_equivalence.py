@@ -257,3 +257,29 @@ def test_gathered_lines_and_their_first_runs(seed, n_lines, width):
         np.testing.assert_array_equal(got.z[li, :m], xyz[slots, 2])
         c, p = codes[slots], phi[slots].astype(np.float64)
         assert (got.run_a[li], got.run_b[li]) == _potential_ground(c, p, 0, 10, 10.0, *scratch)
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(0, 40))
+def test_kernels_into_dirty_buffers_are_the_allocating_ones(seed, n):
+    """The coarse classifier reuses one set of buffers for all its lines: what a line leaves
+    behind must not reach the next (buffers filled with NaN / True here)."""
+    rng = np.random.default_rng(seed)
+    width = n + 5
+    xyz = rng.normal(0.0, 5.0, (width, 3))
+    valid = rng.random(width) > 0.2
+    line = rng.permutation(width)[: n + 2].astype(np.int64)
+    pts, sv, phi = np.full(width, 7, np.int64), np.full(width, np.nan), np.full(width, np.nan)
+    m = K.line_statistics_into(xyz, valid, line, np.zeros(3), 0.0, False, pts, sv, phi)
+    ref = K.line_statistics(xyz, valid, line, np.zeros(3))
+    np.testing.assert_array_equal(pts[:m], ref[0])
+    np.testing.assert_array_equal(sv[:m], ref[1])
+    np.testing.assert_array_equal(phi[:m], ref[2])
+    x = rng.choice([-90.0, 0.0, 90.0], n) + rng.normal(0, 20.0, n)
+    a0, a1 = stochastic(rng, 3), stochastic(rng, 3)
+    out = np.ones(width, np.bool_)
+    K.hmm_cusum3_into(x, np.array([-90.0, 0.0, 90.0]), 20.0, a0, a1, 10.0, out)
+    np.testing.assert_array_equal(out[:n], K._hmm_cusum_n(x, np.array([-90.0, 0.0, 90.0]), 20.0, a0, a1, 10.0))
+    out[:] = True
+    K.mean_shift_cusum_into(x, 90.0, 0.0, 25.0, 5.0, out)
+    np.testing.assert_array_equal(out[:n], K.mean_shift_cusum(x, 90.0, 0.0, 25.0, 5.0))

@@ -3,6 +3,8 @@ detector's outputs the same with one thread as with several."""
 
 from __future__ import annotations
 
+import itertools
+
 import numba
 import numpy as np
 import pytest
@@ -29,7 +31,10 @@ def test_in_threads_covers_every_item_once(threads, n):
 
     in_threads(work, n, min_chunk=256)
     assert (seen == 1).all()
-    assert len(chunks) == max(1, min(threads, n // 256))
+    k = max(1, min(threads, n // 256))  # threads used; each takes four chunks' worth on average
+    assert len(chunks) == (1 if k == 1 else 4 * k)
+    c = sorted(chunks)  # contiguous pieces of 0..n
+    assert c[0][0] == 0 and c[-1][1] == n and all(a[1] == b[0] for a, b in itertools.pairwise(c))
 
 
 def test_errors_reach_the_caller(threads):

@@ -128,32 +128,42 @@ def _classify_lines(
     codes, t_prime, sv_out, phi_out, lo, hi,
     xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th, min_step, centred, shared, with_tp,
 ):  # fmt: skip
-    """The coarse classes of lines ``lo..hi - 1`` written into ``codes, t_prime, sv_out, phi_out``."""
+    """The coarse classes of lines ``lo..hi - 1`` written into ``codes, t_prime, sv_out, phi_out``.
+
+    Per-line arrays live in buffers made once per call: allocating in the loop made two threads
+    running this slower than one (the allocator is shared)."""
     origin = np.zeros(3)
+    width = lines.shape[1]
+    pts_b, sv_b, phi_b = np.empty(width, np.int64), np.empty(width), np.empty(width)
+    veg_b, tp_b, vert_b = np.empty(width, np.bool_), np.empty(width, np.bool_), np.empty(width, np.bool_)
+    sd_b, rest_b = np.empty(width), np.empty(width)
     for li in range(lo, hi):  # scan lines are independent; each writes only its slots
-        pts, sv, phi = K.line_statistics(xyz, valid, lines[li], origin, min_step, centred)
-        n = pts.shape[0]
+        n = K.line_statistics_into(xyz, valid, lines[li], origin, min_step, centred, pts_b, sv_b, phi_b)
         if n == 0:
             continue
-        veg = K.hmm_cusum(sv, vm, vs, va0, va1, vh)
+        pts, sv, phi = pts_b[:n], sv_b[:n], phi_b[:n]
+        veg = veg_b[:n]
+        if vm.shape[0] == 3:
+            K.hmm_cusum3_into(sv, vm, vs, va0, va1, vh, veg)
+        else:
+            veg[:] = K.hmm_cusum(sv, vm, vs, va0, va1, vh)
+        tp = tp_b[:n]
         if with_tp:
-            sd = np.zeros(n)
+            sd = sd_b[:n]
+            sd[0] = 0.0
             for k in range(1, n):
                 sd[k] = sv[k] - sv[k - 1]
-            tp = K.hmm_cusum(sd, tm, ts, ta0, ta1, th)
-        else:
-            tp = veg  # not written
+            if tm.shape[0] == 3:
+                K.hmm_cusum3_into(sd, tm, ts, ta0, ta1, th, tp)
+            else:
+                tp[:] = K.hmm_cusum(sd, tm, ts, ta0, ta1, th)
         m = 0
         for k in range(n):
             if not veg[k]:
+                rest_b[m] = sv[k]
                 m += 1
-        rest = np.empty(m)
-        j = 0
-        for k in range(n):
-            if not veg[k]:
-                rest[j] = sv[k]
-                j += 1
-        vertical = K.mean_shift_cusum(rest, 90.0, 0.0, hs, hh)
+        vertical = vert_b[:m]
+        K.mean_shift_cusum_into(rest_b[:m], 90.0, 0.0, hs, hh, vertical)
         j = 0
         for k in range(n):
             s = pts[k]

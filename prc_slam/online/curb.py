@@ -44,9 +44,11 @@ def possible_curbs(xyz, codes, ground, valid, lines, z_line, t_high, look_back, 
     """
     n_lines, width = lines.shape
     out = np.full((n_lines, max(1, width // 2)), -1, np.int64)
+    pts_b = np.empty(width, np.int64)  # per-line buffers, made once (no allocation in the loop)
+    rng_b = np.empty(width)
     for li in range(n_lines):
-        pts = K.line_returns(lines[li], valid)
-        m = pts.shape[0]
+        m = K._line_returns_into(lines[li], valid, pts_b)
+        pts = pts_b[:m]
         first = 0
         if last_only:
             for k in range(m):
@@ -54,7 +56,7 @@ def possible_curbs(xyz, codes, ground, valid, lines, z_line, t_high, look_back, 
                     first = k
         found = 0
         searching = False
-        rng = np.empty(m)  # distance from the scanner of each return, computed when first needed
+        rng = rng_b[:m]  # distance from the scanner of each return, computed when first needed
         n_rng = 0
         for k in range(first, m):
             s = pts[k]

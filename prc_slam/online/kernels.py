@@ -49,6 +49,12 @@ def line_returns(line, valid):
     """Slot indices of the returns of one scan line, in line order (``line`` is ``-1``-padded;
     slots without a return, the paper's missing points M, are skipped)."""
     pts = np.empty(line.shape[0], np.int64)
+    return pts[: _line_returns_into(line, valid, pts)]
+
+
+@njit(cache=True, nogil=True)
+def _line_returns_into(line, valid, pts):
+    """:func:`line_returns` written into ``pts`` (at least the line's length); returns the count."""
     m = 0
     for j in range(line.shape[0]):
         s = line[j]
@@ -57,7 +63,7 @@ def line_returns(line, valid):
         if valid[s]:
             pts[m] = s
             m += 1
-    return pts[:m]
+    return m
 
 
 @njit(cache=True, nogil=True)
@@ -86,12 +92,24 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0, centred=False):
     pts : int64 (m,)   slot indices of the returns, in line order
     sv, phi_hat : float64 (m,)
     """
-    pts = line_returns(line, valid)
-    n = pts.shape[0]
-    sv = np.zeros(n)
-    phi_hat = np.zeros(n)
+    pts = np.empty(line.shape[0], np.int64)
+    sv = np.empty(line.shape[0])
+    phi_hat = np.empty(line.shape[0])
+    n = line_statistics_into(xyz, valid, line, origin, min_step, centred, pts, sv, phi_hat)
+    return pts[:n], sv[:n], phi_hat[:n]
+
+
+@njit(cache=True, nogil=True)
+def line_statistics_into(xyz, valid, line, origin, min_step, centred, pts, sv, phi_hat):
+    """:func:`line_statistics` written into ``pts, sv, phi_hat`` (each at least the line's
+    length: no allocation, so that threads running it do not contend for the allocator);
+    returns the number of returns ``n`` (the results are the first ``n`` entries)."""
+    n = _line_returns_into(line, valid, pts)
     if n < 2:
-        return pts, sv, phi_hat
+        for k in range(n):
+            sv[k] = 0.0
+            phi_hat[k] = 0.0
+        return n
     p0 = p1 = p2 = 0.0  # D_{k-1}
     b0 = b1 = b2 = 0.0  # X_{k+1} - X_A
     cum = 0.0
@@ -129,7 +147,7 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0, centred=False):
         p0, p1, p2 = d0, d1, d2
     sv[n - 1] = sv[n - 2]
     phi_hat[n - 1] = phi_hat[n - 2]
-    return pts, sv, phi_hat
+    return n
 
 
 @njit(cache=True, nogil=True)
@@ -212,8 +230,17 @@ def _hmm_cusum_n(x, means, sigma, a0, a1, h):
 def _hmm_cusum3(x, means, sigma, a0, a1, h):
     """:func:`hmm_cusum` with three states (the paper's -90 / 0 / 90 deg), the filter held in
     scalars: the same operations in the same order, so the same values bit for bit."""
+    changed = np.empty(x.shape[0], np.bool_)
+    hmm_cusum3_into(x, means, sigma, a0, a1, h, changed)
+    return changed
+
+
+@njit(cache=True, nogil=True)
+def hmm_cusum3_into(x, means, sigma, a0, a1, h, changed):
+    """:func:`_hmm_cusum3` written into ``changed[:len(x)]`` (no allocation)."""
     n = x.shape[0]
-    changed = np.zeros(n, np.bool_)
+    for k in range(n):
+        changed[k] = False
     f00 = f01 = f02 = 1.0 / 3
     f10 = f11 = f12 = 1.0 / 3
     m0, m1, m2 = means[0], means[1], means[2]
@@ -245,7 +272,6 @@ def _hmm_cusum3(x, means, sigma, a0, a1, h):
         f00, f01, f02 = p00 / l0, p01 / l0, p02 / l0
         f10, f11, f12 = p10 / l1, p11 / l1, p12 / l1
         state, w, start = _cusum_step(np.log(l1) - np.log(l0), k, state, w, start, h, changed)
-    return changed
 
 
 @njit(cache=True, nogil=True)
@@ -259,10 +285,19 @@ def mean_shift_cusum(x, mu_a, mu_b, sigma, h):
     -------
     in_b : bool (n,)
     """
+    out = np.empty(x.shape[0], np.bool_)
+    mean_shift_cusum_into(x, mu_a, mu_b, sigma, h, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def mean_shift_cusum_into(x, mu_a, mu_b, sigma, h, out):
+    """:func:`mean_shift_cusum` written into ``out[:len(x)]`` (no allocation)."""
     n = x.shape[0]
-    out = np.zeros(n, np.bool_)
+    for k in range(n):
+        out[k] = False
     if n == 0:
-        return out
+        return
     state = 1 if abs(x[0] - mu_b) < abs(x[0] - mu_a) else 0
     w = 0.0
     start = 0
@@ -281,4 +316,3 @@ def mean_shift_cusum(x, mu_a, mu_b, sigma, h):
             w = 0.0
             start = k + 1
         out[k] = state == 1
-    return out

@@ -10,34 +10,42 @@ disjoint outputs; every result is computed as in a serial run.
 
 from __future__ import annotations
 
+import itertools
 import threading
 from collections.abc import Callable
 
 import numba
 
 
-def in_threads(work: Callable[[int, int], object], n: int, min_chunk: int = 256) -> None:
-    """``work(lo, hi)`` over ``0..n`` in contiguous chunks, one per numba thread
-    (``numba.get_num_threads()``, which ``NUMBA_NUM_THREADS`` sets), each chunk at least
-    ``min_chunk`` items: the calling thread takes the first chunk, plain threads the others.
-    ``work`` must release the GIL (a ``nogil`` kernel) and write disjoint outputs per item."""
+def in_threads(work: Callable[[int, int], object], n: int, min_chunk: int = 256, pieces: int = 4) -> None:
+    """``work(lo, hi)`` over ``0..n`` in contiguous chunks on the numba threads
+    (``numba.get_num_threads()``, which ``NUMBA_NUM_THREADS`` sets): as many threads as there are
+    ``min_chunk`` items (at most the numba threads), each taking the next chunk when done with
+    its last; ``pieces`` chunks per thread, so that a thread slowed by a heavier share of the items
+    or by another process on its core does not hold the others up. The calling thread is one of
+    them. ``work`` must release the GIL (a ``nogil`` kernel) and write disjoint outputs per item."""
     k = max(1, min(numba.get_num_threads(), n // max(1, min_chunk)))
     if k == 1:
         work(0, n)
         return
-    bounds = [n * i // k for i in range(k + 1)]
+    m = k * max(1, pieces)
+    bounds = [n * i // m for i in range(m + 1)]
+    turn = itertools.count()  # the next chunk: one atomic step under the GIL
     errors: list[BaseException] = []
 
-    def run(lo: int, hi: int) -> None:
+    def run() -> None:
         try:
-            work(lo, hi)
+            for i in iter(lambda: next(turn), None):
+                if i >= m or errors:
+                    return
+                work(bounds[i], bounds[i + 1])
         except BaseException as exc:  # re-raised in the calling thread
             errors.append(exc)
 
-    threads = [threading.Thread(target=run, args=(bounds[i], bounds[i + 1])) for i in range(1, k)]
+    threads = [threading.Thread(target=run) for _ in range(k - 1)]
     for t in threads:
         t.start()
-    run(bounds[0], bounds[1])
+    run()
     for t in threads:
         t.join()
     if errors:
