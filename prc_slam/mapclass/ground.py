@@ -13,14 +13,13 @@ DIRECTIONS = np.array([(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -
 
 
 @njit(cache=True, nogil=True)
-def _grid_min(points, x0, y0, inv_cell, nx, ny):
-    zmin = np.full((nx, ny), np.inf)
+def _grid_min(points, x0, y0, inv_cell, zmin):
+    """Lowest z per cell into ``zmin`` (inf; allocated by numpy: huge pages)."""
     for i in range(points.shape[0]):
         ix = int((points[i, 0] - x0) * inv_cell)
         iy = int((points[i, 1] - y0) * inv_cell)
         if points[i, 2] < zmin[ix, iy]:
             zmin[ix, iy] = points[i, 2]
-    return zmin
 
 
 @njit(cache=True, nogil=True)
@@ -127,8 +126,9 @@ def _point_mask(points, x0, y0, inv_cell, zmin, ground_cell, tolerance):
     return out
 
 
-@njit(cache=True, nogil=True)
-def scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local):
+def scan_line_votes(
+    zmin: np.ndarray, zlocal: np.ndarray, cell: float, max_slope: float, max_step: float, max_above_local: float
+) -> np.ndarray:
     """Ground votes per cell from the eight scan-line directions.
 
     Along a scan line a non-empty cell is ground when (a) it is at most ``max_above_local``
@@ -141,8 +141,15 @@ def scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local):
     votes : int64 (nx, ny)
         Directions that saw the cell as ground (0..8).
     """
+    votes = np.zeros(zmin.shape, np.int64)
+    _add_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, votes)
+    return votes
+
+
+@njit(cache=True, nogil=True)
+def _add_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, votes):
+    """:func:`scan_line_votes` into ``votes`` (zeros)."""
     nx, ny = zmin.shape
-    votes = np.zeros((nx, ny), np.int64)
     # all lines of a direction are swept at once, row by row of the grid (each line meets a
     # row once, in its own order), with the state of every line (last ground height, distance
     # since) kept per line: the grid is read in memory order, not along the lines
@@ -169,7 +176,6 @@ def scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local):
                         votes[x, y] += 1
                         zg[line] = z
                         dist[line] = 0.0
-    return votes
 
 
 def detect_ground(
@@ -206,7 +212,8 @@ def detect_ground(
         return np.zeros(0, dtype=bool)
     lo, hi = _xy_bounds(pts)
     nx, ny = (np.floor((hi - lo) / cell).astype(np.int64) + 2).tolist()  # +1 spare for rounding
-    zmin = _grid_min(pts, lo[0], lo[1], 1.0 / cell, nx, ny)
+    zmin = np.full((nx, ny), np.inf)
+    _grid_min(pts, lo[0], lo[1], 1.0 / cell, zmin)
     w = 2 * int(np.ceil(local_radius / cell)) + 1
     zlocal = minimum_window(zmin, w)
     votes = scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local)

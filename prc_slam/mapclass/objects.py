@@ -12,7 +12,7 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from prc_slam.mapclass.metrics import segment_density
-from prc_slam.voxels import VoxelGrid, find, find_cell, group_members, voxel_counts
+from prc_slam.voxels import VoxelGrid, _rehash32, _table_size, find, find_cell, group_members, voxel_counts
 
 
 @njit(cache=True, nogil=True)
@@ -559,10 +559,16 @@ def detect_posts(
     if len(points) == 0:
         return np.zeros(0, dtype=bool)
     grid = VoxelGrid.build(points, voxel)
-    filled = grid.counts >= min_voxel_points
     max_run = max(int(np.floor(max_extent / voxel + 1e-9)), 1)
     min_layers = int(np.ceil(min_height / voxel - 1e-9))
-    post = _post_voxels(grid.coords, filled, grid.table, max_run, min_layers)[grid.voxel]
+    # the pillar search sees filled voxels only (an empty one ends a run or a stack as a
+    # missing one does): a table of those alone, a fraction of the grid's, stays in cache
+    filled = np.flatnonzero(grid.counts >= min_voxel_points)
+    coords = grid.coords[filled]
+    table = _rehash32(coords, len(coords), _table_size(len(coords)))
+    post_voxel = np.zeros(grid.n_voxels, bool)
+    post_voxel[filled] = _post_voxels(coords, np.ones(len(coords), bool), table, max_run, min_layers)
+    post = post_voxel[grid.voxel]
     return post | adjacent_small_segments(points, segment, post, small_segment_points)
 
 
