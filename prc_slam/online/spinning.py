@@ -80,6 +80,7 @@ from numba import njit
 
 from prc_slam.online.car import oriented_boxes_of
 from prc_slam.online.coarse import elevation_rows
+from prc_slam.online.threads import in_threads
 from prc_slam.scan import Scan, SpinningSensor
 
 
@@ -512,9 +513,9 @@ class SpinningCars:
 
 
 @njit(cache=True, nogil=True)
-def _local_ground(lines, ground, z, line_height):
-    out = np.full(ground.shape[0], np.nan)
-    for li in range(lines.shape[0]):
+def _local_ground(lines, ground, z, line_height, lo, hi, out):
+    """:func:`local_ground` of lines ``lo..hi - 1``, written into ``out``."""
+    for li in range(lo, hi):
         h = line_height[li]
         for j in range(lines.shape[1]):
             s = lines[li, j]
@@ -523,7 +524,6 @@ def _local_ground(lines, ground, z, line_height):
             if ground[s]:
                 h = z[s]
             out[s] = h
-    return out
 
 
 def local_ground(lines: np.ndarray, ground: np.ndarray, z: np.ndarray, line_height: np.ndarray) -> np.ndarray:
@@ -541,12 +541,13 @@ def local_ground(lines: np.ndarray, ground: np.ndarray, z: np.ndarray, line_heig
     -------
     float64, flat per slot (NaN for slots on no line)
     """
-    return _local_ground(
-        np.ascontiguousarray(lines, dtype=np.int64),
-        np.ascontiguousarray(ground, dtype=np.bool_),
-        np.asarray(z, dtype=np.float64),  # a strided view is fine (e.g. the z column of slot_xyz64)
-        np.ascontiguousarray(line_height, dtype=np.float64),
-    )
+    lines = np.ascontiguousarray(lines, dtype=np.int64)
+    ground = np.ascontiguousarray(ground, dtype=np.bool_)
+    z = np.asarray(z, dtype=np.float64)  # a strided view is fine (e.g. the z column of slot_xyz64)
+    line_height = np.ascontiguousarray(line_height, dtype=np.float64)
+    out = np.full(ground.shape[0], np.nan)
+    in_threads(lambda lo, hi: _local_ground(lines, ground, z, line_height, lo, hi, out), lines.shape[0])
+    return out
 
 
 @njit(cache=True, nogil=True)
