@@ -125,39 +125,74 @@ def _normals_from_sums(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return normals, curvature
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _normal_of(c, s1, s2, s3, s4, s5, s6, s7, s8, s9):
+    """Normal and curvature from one (count, Σx, Σxxᵀ) row; ``ok`` False where fewer than 3
+    points or a degenerate (line-like) spread."""
+    if c < 3:
+        return False, 0.0, 0.0, 0.0, 1.0
+    mx, my, mz = s1 / c, s2 / c, s3 / c
+    c00 = s4 / c - mx * mx
+    c01 = s5 / c - mx * my
+    c02 = s6 / c - mx * mz
+    c11 = s7 / c - my * my
+    c12 = s8 / c - my * mz
+    c22 = s9 / c - mz * mz
+    r = _jacobi3(c00, c11, c22, c01, c02, c12)
+    if r[12]:
+        i0, i1, i2 = _ascending3(r[0], r[1], r[2])
+        d = (r[0], r[1], r[2])
+        w0, w1, w2 = d[i0], d[i1], d[i2]
+        cols = ((r[3], r[4], r[5]), (r[6], r[7], r[8]), (r[9], r[10], r[11]))
+        n0, n1, n2 = cols[i0]
+    else:  # not converged: LAPACK decides
+        cov = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
+        ew, ev = np.linalg.eigh(cov)
+        w0, w1, w2 = ew[0], ew[1], ew[2]
+        n0, n1, n2 = ev[0, 0], ev[1, 0], ev[2, 0]
+    total = w0 + w1 + w2
+    if total <= 0 or w1 <= 1e-6 * total:  # all points coincide or lie on a line
+        return False, 0.0, 0.0, 0.0, 1.0
+    return True, n0, n1, n2, max(w0, 0.0) / total
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _fill_normals(sums, normals, curvature):
     """:func:`_normals_from_sums` into ``normals`` (NaN) and ``curvature`` (ones). Rows are
     independent (parallel loop; the result does not depend on the thread count)."""
     n = sums.shape[0]
     for i in prange(n):
-        c = sums[i, 0]
-        if c < 3:
-            continue
-        mx, my, mz = sums[i, 1] / c, sums[i, 2] / c, sums[i, 3] / c
-        c00 = sums[i, 4] / c - mx * mx
-        c01 = sums[i, 5] / c - mx * my
-        c02 = sums[i, 6] / c - mx * mz
-        c11 = sums[i, 7] / c - my * my
-        c12 = sums[i, 8] / c - my * mz
-        c22 = sums[i, 9] / c - mz * mz
-        r = _jacobi3(c00, c11, c22, c01, c02, c12)
-        if r[12]:
-            i0, i1, i2 = _ascending3(r[0], r[1], r[2])
-            d = (r[0], r[1], r[2])
-            w0, w1, w2 = d[i0], d[i1], d[i2]
-            cols = ((r[3], r[4], r[5]), (r[6], r[7], r[8]), (r[9], r[10], r[11]))
-            n0, n1, n2 = cols[i0]
-        else:  # not converged: LAPACK decides
-            cov = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
-            ew, ev = np.linalg.eigh(cov)
-            w0, w1, w2 = ew[0], ew[1], ew[2]
-            n0, n1, n2 = ev[0, 0], ev[1, 0], ev[2, 0]
-        total = w0 + w1 + w2
-        if total <= 0 or w1 <= 1e-6 * total:  # all points coincide or lie on a line
-            continue
-        normals[i, 0], normals[i, 1], normals[i, 2] = n0, n1, n2
-        curvature[i] = max(w0, 0.0) / total
+        r = sums[i]
+        ok, n0, n1, n2, cv = _normal_of(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9])
+        if ok:
+            normals[i, 0], normals[i, 1], normals[i, 2] = n0, n1, n2
+            curvature[i] = cv
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _fill_normals_lists(start, nbr, moments, normals, curvature):
+    """:func:`_fill_normals` of the neighbourhood sums of ``moments`` over the CSR lists,
+    each sum formed in list order as :meth:`VoxelGrid.neighbourhood_sum` forms it (the same
+    values), without the (V, 10) array of sums."""
+    n = moments.shape[0]
+    for i in prange(n):
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = 0.0
+        for j in range(start[i], start[i + 1]):
+            u = nbr[j]
+            s0 += moments[u, 0]
+            s1 += moments[u, 1]
+            s2 += moments[u, 2]
+            s3 += moments[u, 3]
+            s4 += moments[u, 4]
+            s5 += moments[u, 5]
+            s6 += moments[u, 6]
+            s7 += moments[u, 7]
+            s8 += moments[u, 8]
+            s9 += moments[u, 9]
+        ok, n0, n1, n2, cv = _normal_of(s0, s1, s2, s3, s4, s5, s6, s7, s8, s9)
+        if ok:
+            normals[i, 0], normals[i, 1], normals[i, 2] = n0, n1, n2
+            curvature[i] = cv
 
 
 def _column_mean(points: np.ndarray) -> np.ndarray:
@@ -341,8 +376,9 @@ def voxel_normals(points: np.ndarray, voxel: float) -> tuple[VoxelGrid, np.ndarr
     grid = VoxelGrid.build(points, voxel)
     centre = _column_mean(points) if len(points) else np.zeros(3)
     sums = _voxel_moments(points, centre, grid.voxel, grid.n_voxels)
-    grid.neighbour_lists()  # kept on the grid: the sums here, the region growing next
-    normals, curvature = _normals_from_sums(grid.neighbourhood_sum(sums))
+    start, nbr = grid.neighbour_lists()  # kept on the grid: the sums here, the region growing next
+    normals, curvature = np.full((grid.n_voxels, 3), np.nan), np.ones(grid.n_voxels)
+    _fill_normals_lists(start, nbr, sums, normals, curvature)
     return grid, normals, curvature
 
 
