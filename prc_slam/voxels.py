@@ -2,7 +2,12 @@
 4.4) and the class-aware registration's correspondence search.
 
 A grid is an open-addressing hash from integer voxel coordinates to a dense voxel index, built
-in one O(N) pass (no sort). Everything is numba; callers get arrays.
+in one O(N) pass (no sort), with int32 coordinates and table while the coordinates fit (half
+the bytes each probe reads; the int64 build beyond). Flat (x-y) grids over a compact box use a
+dense array of their cells instead of the hash (:attr:`VoxelGrid.plane`, :func:`find_cell`).
+Everything is numba; callers get arrays. Large outputs are allocated by numpy and filled by the
+kernels: numpy asks the kernel for huge pages on large arrays, numba's own allocations get 4 kB
+pages, whose first touch costs about four times as much here.
 
 On large grids the 3x3x3 neighbourhoods (sums, lists, components) are found by a merge walk over
 the voxels sorted by a linear key (:func:`neighbour_lists`) instead of 27 hash probes per voxel:
@@ -601,6 +606,8 @@ class VoxelGrid:
         Integer coordinates of every occupied voxel.
     counts : int64 (V,)
         Points per voxel.
+    table : int32 or int64 (power of two,)
+        The hash of the voxels for :func:`find` (made on first use for grids with a ``plane``).
     """
 
     size: float
