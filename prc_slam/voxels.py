@@ -460,26 +460,29 @@ def _sorted_keys(coords: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
 def _merge_neighbours(coords: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """3x3x3 neighbour lists (CSR, the voxel itself included) in the order of
     :func:`_neighbours` without the empty slots: a merge walk over the voxels sorted by linear
-    key, one monotone pointer per (dx, dy) column. ``start`` is empty when the keys overflow."""
+    key, one monotone pointer per (dx, dy) column, writing the lists in sorted order; then each
+    list moved to its voxel's place in input order. ``start`` is empty when the keys overflow."""
     nv = len(coords)
     sorted_keys = _sorted_keys(coords)
     if sorted_keys is None:
         return np.zeros(0, np.int64), np.zeros(0, np.int32)
-    # pass 1: list lengths; pass 2: the lists, each at its voxel's place in input order
+    walk = np.empty(27 * max(nv, 1), np.int32)  # at most 27 a voxel; untouched pages stay unmapped
+    length = np.empty(nv, np.int64)
+    _merge_walk_lists(*sorted_keys, walk, length)
     start = np.zeros(nv + 1, np.int64)
-    _merge_lengths(*sorted_keys, start)
-    nbr = np.empty(start[nv], np.int32)
-    _merge_lists(*sorted_keys, start, nbr)
+    nbr = np.empty(int(length.sum()), np.int32)
+    _place_lists(sorted_keys[0], walk, length, start, nbr)
     return start, nbr
 
 
 @njit(cache=True, nogil=True)
-def _merge_lengths(order, sk, offs, start):
-    """Pass 1 of :func:`_merge_neighbours`: ``start`` (zeros) as the lists' offsets."""
+def _merge_walk_lists(order, sk, offs, walk, length):
+    """The lists of the voxels in sorted order, one after another in ``walk``; their lengths."""
     nv = order.shape[0]
     ptr = np.zeros(9, np.int64)
+    a = 0
     for i in range(nv):
-        m = 0
+        a0 = a
         for o in range(9):
             t = sk[i] + offs[o]
             p = ptr[o]
@@ -487,30 +490,26 @@ def _merge_lengths(order, sk, offs, start):
                 p += 1
             ptr[o] = p
             while p < nv and sk[p] <= t + 1:
-                m += 1
+                walk[a] = order[p]
+                a += 1
                 p += 1
-        start[order[i] + 1] = m
-    for v in range(nv):
-        start[v + 1] += start[v]
+        length[i] = a - a0
 
 
 @njit(cache=True, nogil=True)
-def _merge_lists(order, sk, offs, start, nbr):
-    """Pass 2 of :func:`_merge_neighbours`: the lists into ``nbr``."""
+def _place_lists(order, walk, length, start, nbr):
+    """CSR in input order from the lists in sorted order: ``start`` (zeros) and ``nbr``."""
     nv = order.shape[0]
-    ptr = np.zeros(9, np.int64)
     for i in range(nv):
-        a = start[order[i]]
-        for o in range(9):
-            t = sk[i] + offs[o]
-            p = ptr[o]
-            while p < nv and sk[p] < t - 1:
-                p += 1
-            ptr[o] = p
-            while p < nv and sk[p] <= t + 1:
-                nbr[a] = order[p]
-                a += 1
-                p += 1
+        start[order[i] + 1] = length[i]
+    for v in range(nv):
+        start[v + 1] += start[v]
+    a = 0
+    for i in range(nv):
+        b = start[order[i]]
+        for j in range(length[i]):
+            nbr[b + j] = walk[a + j]
+        a += length[i]
 
 
 def _merge_sum(coords: np.ndarray, values: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, bool]:
