@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from prc_slam.jobs.batch import PARTIAL, ROW_FILE, Task, load_plan, resolve_tasks, run_batch
+from prc_slam.jobs.batch import PARTIAL, ROW_FILE, Task, largest_first, load_plan, resolve_tasks, run_batch
 
 FRAMES = 3
 
@@ -137,6 +137,21 @@ def _differences(a, b, path="", rtol: float = 0.0) -> list[str]:
     if isinstance(a, float) and isinstance(b, float) and rtol and abs(a - b) <= rtol * max(abs(a), abs(b)):
         return []
     return [] if a == b else [f"{path}: {a!r} != {b!r}"]
+
+
+def test_largest_inputs_start_first(tmp_path):
+    """Dask priorities: the larger an input on disk (a file, or all files under a directory), the
+    earlier it starts; equal sizes in plan order; a missing input last."""
+    (tmp_path / "seq").mkdir()
+    (tmp_path / "seq" / "a.bin").write_bytes(b"x" * 25)
+    (tmp_path / "seq" / "b.bin").write_bytes(b"x" * 20)
+    sizes = {"small": 10, "big": 45, "same": 45}
+    for name, n in sizes.items():
+        (tmp_path / name).write_bytes(b"x" * n)
+    names = ["small", "seq", "big", "missing", "same"]
+    tasks = [Task(name=n, input=str(tmp_path / n), job={"kind": "classify"}) for n in names]
+    rank = dict(zip(names, largest_first(tasks), strict=True))
+    assert sorted(names, key=lambda n: -rank[n]) == ["seq", "big", "same", "small", "missing"]
 
 
 def test_batch_outputs_identical_to_single_runs(client, sims, tmp_path):

@@ -514,6 +514,28 @@ def prepare_out(out: Path, tasks: list[Task], overwrite: bool) -> None:
         shutil.rmtree(final)
 
 
+def input_bytes(path: Path) -> int:
+    """Bytes on disk of an input (a file, or every file under a directory); 0 if missing."""
+    try:
+        if path.is_dir():
+            return sum(e.stat().st_size for e in path.rglob("*") if e.is_file())
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
+def largest_first(tasks: list[Task]) -> list[int]:
+    """Dask priorities (higher runs first) that start the largest inputs first: a long input
+    started last would leave the other workers idle at the end of the batch (longest processing
+    time first, the usual remedy)."""
+    size = [input_bytes(Path(t.input)) for t in tasks]
+    order = sorted(range(len(tasks)), key=lambda i: (size[i], -i))  # ties: plan order first
+    rank = [0] * len(tasks)
+    for r, i in enumerate(order):
+        rank[i] = r
+    return rank
+
+
 def run_batch(
     tasks: list[Task],
     out: Path,
@@ -546,8 +568,9 @@ def run_batch(
             key=f"batch-{t.name}-{batch_id[:8]}",
             pure=False,
             retries=retries,
+            priority=rank,
         ): t
-        for t in tasks
+        for t, rank in zip(tasks, largest_first(tasks), strict=True)
     }
     bar = None if reporter is None else reporter.task("batch: inputs", len(tasks))
     rows: dict[str, dict[str, Any]] = {}
