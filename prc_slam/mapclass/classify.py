@@ -39,6 +39,10 @@ from prc_slam.mapclass.objects import (
     under_crown,
 )
 from prc_slam.mapclass.threads import side_by_side
+from prc_slam.voxels import VoxelGrid
+
+#: the Sec. 4.2 building voxel (m; :func:`detect_buildings`' default)
+BUILDING_VOXEL = 0.33
 
 
 class _Params(BaseModel):
@@ -414,11 +418,13 @@ def _classify_finite(
     # MapClassConfig.foliage_share); posts: the Sec. 4.4 test on everything left (side by side)
     e, q = cfg.vegetation, cfg.post
     coarse = scale.normal_voxel / cfg.normal_voxel  # > 1 on clouds sparser than the paper's
-    (foliage, post), _ = side_by_side(
+    # in urban mode Sec. 4.2 comes first, on these same points: its grid is built meanwhile
+    (foliage, post, building_grid), (t_foliage, t_posts, t_grid) = side_by_side(
         lambda: M.fragmentation(p, tiny, cfg.foliage_voxel * coarse) >= cfg.foliage_share,
         lambda: detect_posts(p, seg, q.voxel, q.min_voxel_points, q.max_extent, q.min_height, cfg.small_segment_points),
+        lambda: VoxelGrid.build(p, BUILDING_VOXEL) if cfg.mode == "urban" else None,
     )
-    clock.lap("foliage_posts")
+    clock.record({"foliage_posts": t_foliage + t_posts, "buildings": t_grid})
     # Sec. 4.2-4.5, each on what the previous steps left
     b, c = cfg.building, cfg.vehicle
     pt = {"p": p, "seg": seg, "vert": v, "foliage": foliage, "post": post}
@@ -442,7 +448,7 @@ def _classify_finite(
             t["p"], t["seg"], t["vert"], b.min_segment_points, b.min_verticality, b.min_height, b.near, b.close,
             spare=t["foliage"] | t["post"] if b.spare_objects else None,
             min_segment_voxels=b.min_segment_voxels, min_reach=b.min_reach, roof=t.get("roof"),
-            seeds_out=roof)  # fmt: skip
+            seeds_out=roof, grid=building_grid if t["p"] is p else None)  # fmt: skip
         if b.under_roof > 0 and roof.any():
             cell = max(b.under_roof, 1.0 / np.sqrt(scale.rho)) if scale.rho > 0 else b.under_roof
             hit |= under_crown(t["p"], roof, cell=cell, reach=1, above=0.5) & ~t["post"]

@@ -180,6 +180,7 @@ def detect_buildings(
     roof: np.ndarray | None = None,
     max_roof_verticality: float = 0.4,
     seeds_out: np.ndarray | None = None,
+    grid: VoxelGrid | None = None,
 ) -> np.ndarray:
     """Sec. 4.2, in the paper's four passes (Fig. 3): large segments with mean verticality
     ≥ ``min_verticality`` (blue); points of large segments within ``near`` of them (green);
@@ -194,11 +195,13 @@ def detect_buildings(
     ``spare`` (not in the paper; None turns it off) marks points the orange pass must not take
     by segment majority: the classifier passes posts (Sec. 4.4) and foliage
     (:func:`prc_slam.mapclass.metrics.fragmentation`), so that poles, hedges and crowns next to a
-    facade are not joined to it.
+    facade are not joined to it. ``grid``: the grid of ``points`` in voxels of side ``voxel``
+    when already built.
     """
     seg, ns = compact(segment)
     size = np.bincount(seg, minlength=ns)
-    grid = VoxelGrid.build(points, voxel)
+    if grid is None or grid.size != voxel or len(grid.voxel) != len(points):
+        grid = VoxelGrid.build(points, voxel)
     if min_segment_points is not None:
         large = size >= min_segment_points
     else:
