@@ -142,6 +142,23 @@ def _build32(points, inv_size, flat, offset, voxel, coords):
 
 
 @njit(cache=True, nogil=True)
+def _renumber(voxel, rows, new_of, out, old_of):
+    """``out``: the voxels of ``voxel[rows]`` renumbered 0.. in order of first appearance;
+    ``old_of``: the old index of each new one; ``new_of`` (all -1) is scratch. Their number."""
+    nv = 0
+    for k in range(rows.shape[0]):
+        v = voxel[rows[k]]
+        w = new_of[v]
+        if w < 0:
+            w = nv
+            new_of[v] = w
+            old_of[w] = v
+            nv += 1
+        out[k] = w
+    return nv
+
+
+@njit(cache=True, nogil=True)
 def _counts(points, inv_size, offset, coords, counts):
     """Points per voxel of the grid :func:`_build32` makes of ``points + offset`` (same voxels,
     same order), without the per-point voxel index: the first rows of ``coords`` (N, 3) int32
@@ -664,6 +681,17 @@ class VoxelGrid:
     @property
     def n_voxels(self) -> int:
         return len(self.coords)
+
+    def subset(self, rows: np.ndarray) -> VoxelGrid:
+        """The grid :meth:`build` makes of the points ``rows`` (indices, increasing or not) of
+        this grid's points, at the same size: the same cubes, numbered in the order of first
+        appearance among those rows, without binning the points again."""
+        rows = np.asarray(rows, dtype=np.int64)
+        voxel = np.empty(len(rows), np.int64)
+        old = np.empty(max(len(rows), 1), np.int64)
+        nv = _renumber(self.voxel, rows, np.full(self.n_voxels, -1, np.int64), voxel, old)
+        coords = self.coords[old[:nv]]
+        return VoxelGrid(self.size, voxel, coords, None, np.bincount(voxel, minlength=nv))
 
     def neighbours(self, radius: int = 1) -> np.ndarray:
         """Indices of the ``(2r+1)^3`` voxels around every voxel (itself included), -1 where empty."""

@@ -725,3 +725,12 @@ def test_voxel_normals_from_lists_are_the_normals_of_the_summed_moments():
     np.testing.assert_array_equal(normals, n2)
     np.testing.assert_array_equal(curvature, c2)
     assert np.isfinite(normals[:, 0]).mean() > 0.5
+
+
+def test_subset_grid_is_the_grid_of_the_subset():
+    pts = RNG.normal(0, 3, size=(5000, 3))
+    grid = VoxelGrid.build(pts, 0.5)
+    for rows in (np.flatnonzero(RNG.random(len(pts)) < 0.7), np.arange(len(pts)), np.zeros(0, np.int64)):
+        a, b = grid.subset(rows), VoxelGrid.build(pts[rows], 0.5)
+        for x, y in zip((a.voxel, a.coords, a.counts, a.table), (b.voxel, b.coords, b.counts, b.table), strict=True):
+            np.testing.assert_array_equal(x, y)

@@ -370,7 +370,13 @@ def _classify_finite(
     segment = np.full(n, -1, dtype=np.int64)
     vert = np.zeros(n)
     # Sec. 3.1 / 4: outliers by local density (threshold relative to the cloud unless paper)
-    density, dgrid = M.local_density(pts, scale.density_voxel)
+    # the normals' grid of every point is built beside the density grid (it needs no density);
+    # the inliers' grid is then that grid's subset
+    voxels = cfg.normals == "voxels"
+    ((density, dgrid), all_grid), _ = side_by_side(
+        lambda: M.local_density(pts, scale.density_voxel),
+        lambda: VoxelGrid.build(pts, scale.normal_voxel) if voxels else None,
+    )
     if scale.relative:
         scale.threshold = outlier_threshold(
             density, scale.density_voxel, cfg.density_percentile, cfg.density_fraction, cfg.density_min_points
@@ -380,8 +386,9 @@ def _classify_finite(
     if len(idx) == 0:
         return labels, segment, density, vert
     # Sec. 3.2 / 5: normals and segmentation (and each segment's size in normal voxels)
-    if cfg.normals == "voxels":
-        grid, normals, curv_v = M.voxel_normals(p, scale.normal_voxel)
+    if voxels:
+        sub = all_grid if len(idx) == n else all_grid.subset(idx)
+        grid, normals, curv_v = M.voxel_normals(p, scale.normal_voxel, sub)
         normal_of = grid.voxel  # every point takes its voxel's normal
     else:
         normals, curv, nb = M.knn_normals(p, cfg.knn, cfg.knn_radius)

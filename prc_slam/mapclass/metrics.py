@@ -362,9 +362,12 @@ def _grow(normals, curvature, start, neighbours, cos_theta, max_curvature, valid
     return ns
 
 
-def voxel_normals(points: np.ndarray, voxel: float) -> tuple[VoxelGrid, np.ndarray, np.ndarray]:
+def voxel_normals(
+    points: np.ndarray, voxel: float, grid: VoxelGrid | None = None
+) -> tuple[VoxelGrid, np.ndarray, np.ndarray]:
     """Voxel formulation of the normals: one covariance per voxel of side ``voxel`` from the
-    points of its 3x3x3 neighbourhood.
+    points of its 3x3x3 neighbourhood. ``grid``: the points' grid of that side when already
+    built.
 
     Returns
     -------
@@ -373,7 +376,8 @@ def voxel_normals(points: np.ndarray, voxel: float) -> tuple[VoxelGrid, np.ndarr
         Per voxel; NaN where the neighbourhood is degenerate.
     curvature : float (V,)
     """
-    grid = VoxelGrid.build(points, voxel)
+    if grid is None or grid.size != voxel or len(grid.voxel) != len(points):
+        grid = VoxelGrid.build(points, voxel)
     centre = _column_mean(points) if len(points) else np.zeros(3)
     sums = _voxel_moments(points, centre, grid.voxel, grid.n_voxels)
     start, nbr = grid.neighbour_lists()  # kept on the grid: the sums here, the region growing next
