@@ -386,24 +386,13 @@ def _classify_finite(
     if len(idx) == 0:
         return labels, segment, density, vert
     # Sec. 3.2 / 5: normals and segmentation (and each segment's size in normal voxels)
-    # the grids of the object steps, of every inlier, are built beside the normals (a core is
-    # free while the normals' serial kernels run); each step takes its points' subset later
-    e, q = cfg.vegetation, cfg.post
-    coarse = scale.normal_voxel / cfg.normal_voxel  # > 1 on clouds sparser than the paper's
-    sizes = {"foliage": cfg.foliage_voxel * coarse, "posts": q.voxel}
-    if cfg.mode == "urban":
-        sizes["buildings"] = BUILDING_VOXEL
     if voxels:
         sub = all_grid if len(idx) == n else all_grid.subset(idx)
-        ((grid, normals, curv_v), inlier_grids), _ = side_by_side(
-            lambda: M.voxel_normals(p, scale.normal_voxel, sub),
-            lambda: {k: VoxelGrid.build(p, size) for k, size in sizes.items()},
-        )
+        grid, normals, curv_v = M.voxel_normals(p, scale.normal_voxel, sub)
         normal_of = grid.voxel  # every point takes its voxel's normal
     else:
         normals, curv, nb = M.knn_normals(p, cfg.knn, cfg.knn_radius)
         normal_of = None
-        inlier_grids = {k: VoxelGrid.build(p, size) for k, size in sizes.items()}
     clock.lap("normals")
 
     def segmentation() -> tuple[np.ndarray, np.ndarray]:
@@ -429,20 +418,20 @@ def _classify_finite(
     _scatter(vert, idx, v)
     clock.lap("verticality")
     t = time.perf_counter()
-    rest = np.flatnonzero(~ground)
     ground_pts, idx, p, seg, v, tiny = _split_ground(ground, labels, L.GROUND, idx, p, seg, v, tiny)
     scene = p
     clock.record({"ground": t_ground + time.perf_counter() - t})
     # foliage: where most points lie in segments of at most two normal voxels (see
     # MapClassConfig.foliage_share); posts: the Sec. 4.4 test on everything left (side by side)
-    (foliage, post), (t_foliage, t_posts) = side_by_side(
-        lambda: M.fragmentation(p, tiny, sizes["foliage"], inlier_grids["foliage"].subset(rest)) >= cfg.foliage_share,
-        lambda: detect_posts(
-            p, seg, q.voxel, q.min_voxel_points, q.max_extent, q.min_height, cfg.small_segment_points,
-            inlier_grids["posts"].subset(rest),
-        ),
-    )  # fmt: skip
-    clock.record({"foliage_posts": t_foliage + t_posts})
+    e, q = cfg.vegetation, cfg.post
+    coarse = scale.normal_voxel / cfg.normal_voxel  # > 1 on clouds sparser than the paper's
+    # in urban mode Sec. 4.2 comes first, on these same points: its grid is built meanwhile
+    (foliage, post, building_grid), (t_foliage, t_posts, t_grid) = side_by_side(
+        lambda: M.fragmentation(p, tiny, cfg.foliage_voxel * coarse) >= cfg.foliage_share,
+        lambda: detect_posts(p, seg, q.voxel, q.min_voxel_points, q.max_extent, q.min_height, cfg.small_segment_points),
+        lambda: VoxelGrid.build(p, BUILDING_VOXEL) if cfg.mode == "urban" else None,
+    )
+    clock.record({"foliage_posts": t_foliage + t_posts, "buildings": t_grid})
     # Sec. 4.2-4.5, each on what the previous steps left
     b, c = cfg.building, cfg.vehicle
     pt = {"p": p, "seg": seg, "vert": v, "foliage": foliage, "post": post}
@@ -466,7 +455,7 @@ def _classify_finite(
             t["p"], t["seg"], t["vert"], b.min_segment_points, b.min_verticality, b.min_height, b.near, b.close,
             spare=t["foliage"] | t["post"] if b.spare_objects else None,
             min_segment_voxels=b.min_segment_voxels, min_reach=b.min_reach, roof=t.get("roof"),
-            seeds_out=roof, grid=inlier_grids["buildings"].subset(rest) if t["p"] is p else None)  # fmt: skip
+            seeds_out=roof, grid=building_grid if t["p"] is p else None)  # fmt: skip
         if b.under_roof > 0 and roof.any():
             cell = max(b.under_roof, 1.0 / np.sqrt(scale.rho)) if scale.rho > 0 else b.under_roof
             hit |= under_crown(t["p"], roof, cell=cell, reach=1, above=0.5) & ~t["post"]

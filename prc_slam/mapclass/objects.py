@@ -556,15 +556,12 @@ def detect_posts(
     max_extent: float = 1.0,
     min_height: float = 1.5,
     small_segment_points: int = 200,
-    grid: VoxelGrid | None = None,
 ) -> np.ndarray:
     """Sec. 4.4: voxel pillars at least ``min_height`` tall whose filled voxels reach at most
-    ``max_extent`` horizontally, plus small adjacent segments. ``grid``: the points' grid of
-    side ``voxel`` when already built."""
+    ``max_extent`` horizontally, plus small adjacent segments."""
     if len(points) == 0:
         return np.zeros(0, dtype=bool)
-    if grid is None or grid.size != voxel or len(grid.voxel) != len(points):
-        grid = VoxelGrid.build(points, voxel)
+    grid = VoxelGrid.build(points, voxel)
     max_run = max(int(np.floor(max_extent / voxel + 1e-9)), 1)
     min_layers = int(np.ceil(min_height / voxel - 1e-9))
     # the pillar search sees filled voxels only (an empty one ends a run or a stack as a
