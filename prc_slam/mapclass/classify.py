@@ -426,17 +426,20 @@ def _classify_finite(
     e, q = cfg.vegetation, cfg.post
     coarse = scale.normal_voxel / cfg.normal_voxel  # > 1 on clouds sparser than the paper's
     # in urban mode Sec. 4.2 comes first, on these same points: its grid is built meanwhile
-    (foliage, post, building_grid), (t_foliage, t_posts, t_grid) = side_by_side(
+    # ... and the roof seeds' heights above ground (the only step here with parallel kernels: in
+    # the calling thread)
+    b, c = cfg.building, cfg.vehicle
+    (hag, foliage, post, building_grid), (t_hag, t_foliage, t_posts, t_grid) = side_by_side(
+        lambda: height_above_ground(p, ground_pts, cell=max(2.5, 2 * scale.ground_cell), radius=3)
+        if b.roof_height > 0 else None,
         lambda: M.fragmentation(p, tiny, cfg.foliage_voxel * coarse) >= cfg.foliage_share,
         lambda: detect_posts(p, seg, q.voxel, q.min_voxel_points, q.max_extent, q.min_height, cfg.small_segment_points),
         lambda: VoxelGrid.build(p, BUILDING_VOXEL) if cfg.mode == "urban" else None,
-    )
-    clock.record({"foliage_posts": t_foliage + t_posts, "buildings": t_grid})
+    )  # fmt: skip
+    clock.record({"foliage_posts": t_foliage + t_posts, "buildings": t_grid + t_hag})
     # Sec. 4.2-4.5, each on what the previous steps left
-    b, c = cfg.building, cfg.vehicle
     pt = {"p": p, "seg": seg, "vert": v, "foliage": foliage, "post": post}
     if b.roof_height > 0:  # roof seeds: high above the ground and not foliage
-        hag = height_above_ground(p, ground_pts, cell=max(2.5, 2 * scale.ground_cell), radius=3)
         pt["roof"] = (hag >= b.roof_height) & ~foliage & ~post
 
     def posts_not_stems(t: dict[str, np.ndarray]) -> np.ndarray:

@@ -4,9 +4,10 @@ Steps that need nothing of each other (the two shifted grids of the surface dens
 beside the segmentation, foliage beside the posts) run on two threads when numba may use two
 (``numba.get_num_threads()``, set by ``NUMBA_NUM_THREADS``; 1: one after the other in the
 calling thread). Each step's heavy work is in ``nogil`` numba kernels or numpy, so the threads
-share whatever cores are free; the steps run here call serial kernels only (numba's work-queue
-threading layer must not be entered from two threads at once). Every result is computed as in
-a serial run: the steps write no shared output.
+share whatever cores are free; only the first step (in the calling thread) may call numba's
+parallel kernels, the others call serial ones (numba's work-queue threading layer must not be
+entered from two threads at once). Every result is computed as in a serial run: the steps
+write no shared output.
 """
 
 from __future__ import annotations
