@@ -697,24 +697,6 @@ def test_column_mean_is_numpys_mean_bit_for_bit():
     assert M._column_mean(pts[::3]).tobytes() == np.ascontiguousarray(pts[::3]).mean(axis=0).tobytes()
 
 
-def test_side_by_side_results_in_order_and_errors_raised(monkeypatch):
-    import numba
-
-    from prc_slam.mapclass.threads import side_by_side
-
-    for threads in (1, 2):
-        monkeypatch.setattr(numba, "get_num_threads", lambda threads=threads: threads)
-        out, sec = side_by_side(lambda: 1, lambda: np.arange(3), lambda: "c")
-        assert out[0] == 1 and out[2] == "c" and list(out[1]) == [0, 1, 2]
-        assert len(sec) == 3 and min(sec) >= 0
-
-        def boom():
-            raise ValueError("boom")
-
-        with pytest.raises(ValueError, match="boom"):
-            side_by_side(lambda: 1, boom)
-
-
 def test_voxel_normals_from_lists_are_the_normals_of_the_summed_moments():
     """The fused kernel (sums over the neighbour lists, then the eigen solver) gives the same
     normals and curvatures as summing the moments first, bit for bit."""

@@ -38,7 +38,7 @@ from prc_slam.mapclass.objects import (
     segment_voxels,
     under_crown,
 )
-from prc_slam.mapclass.threads import side_by_side
+from prc_slam.threads import side_by_side
 from prc_slam.voxels import VoxelGrid
 
 #: the Sec. 4.2 building voxel (m; :func:`detect_buildings`' default)

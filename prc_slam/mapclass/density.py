@@ -21,7 +21,7 @@ from functools import partial
 
 import numpy as np
 
-from prc_slam.mapclass.threads import side_by_side
+from prc_slam.threads import side_by_side
 from prc_slam.voxels import voxel_counts
 
 

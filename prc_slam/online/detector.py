@@ -9,7 +9,7 @@ Sec. 6, for curb faces; the column ground where columns are too short for Sec. 5
 ``OnlineDetector.paper()`` keeps the paper's per-column car algorithm on every sensor.
 
 With more than one numba thread the coarse classifier splits its lines between threads and the
-curb detectors run beside the spinning car path (:mod:`prc_slam.online.threads`); the results are
+curb detectors run beside the spinning car path (:mod:`prc_slam.threads`); the results are
 the same with any thread count (``NUMBA_NUM_THREADS=1``: everything in the calling thread).
 """
 
@@ -33,8 +33,8 @@ from prc_slam.online.spinning import (
     detect_curbs_spinning,
     local_ground,
 )
-from prc_slam.online.threads import concurrently
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
+from prc_slam.threads import side_by_side
 
 
 @dataclass
@@ -144,7 +144,7 @@ class OnlineDetector:
                 veg = coarse.codes == L.VEGETATION
                 return detect_cars_spinning(scan, ground, lines, line_heights, veg, self.spinning_params, zg)
 
-            curbs, cars = concurrently(all_curbs, spinning_cars)  # the cars do not use the curbs
+            (cars, curbs), _ = side_by_side(spinning_cars, all_curbs)  # the cars do not use the curbs
         else:
             curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
             cars = detect_cars(scan, coarse, heights, curbs.mask, self.car_params)

@@ -25,8 +25,8 @@ from numba import njit
 
 from prc_slam import labels as L
 from prc_slam.online.coarse import CoarseResult
-from prc_slam.online.threads import in_threads
 from prc_slam.scan import Scan
+from prc_slam.threads import in_threads
 
 HISTORY = 500
 

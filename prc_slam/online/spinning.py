@@ -80,8 +80,8 @@ from numba import njit
 
 from prc_slam.online.car import oriented_boxes_of
 from prc_slam.online.coarse import elevation_rows
-from prc_slam.online.threads import in_threads
 from prc_slam.scan import Scan, SpinningSensor
+from prc_slam.threads import in_threads
 
 
 @dataclass(frozen=True)

@@ -1,18 +1,24 @@
-"""Running the online detectors' kernels on more than one core without numba's parallel loops.
+"""Running independent pieces of work on more than one core without numba's parallel loops.
 
 With another process on one of two cores, numba's parallel loops ran 1.4x slower than serial code
-(their workers wait for one another: 69.5 vs 50.0 ms a hdl64 sweep); here work is split into a
-few large independent pieces, one per numba thread (``numba.get_num_threads()``, which
-``NUMBA_NUM_THREADS`` sets; 1: everything in the calling thread), on plain threads that only
-share whatever cores are free. The pieces must release the GIL (``nogil`` kernels) and write
-disjoint outputs; every result is computed as in a serial run.
+(their workers wait for one another: 69.5 vs 50.0 ms a hdl64 sweep of the online detectors); here
+work is split into a few large independent pieces on plain threads that only share whatever cores
+are free: chunks of items (:func:`in_threads`: the online detectors' scan lines) or whole steps
+(:func:`side_by_side`: the curb and car detectors, steps of the map classification). As many
+threads as numba may use (``numba.get_num_threads()``, which ``NUMBA_NUM_THREADS`` sets; 1:
+everything in the calling thread, one after the other). The pieces must release the GIL
+(``nogil`` kernels, numpy) and write disjoint outputs; every result is computed as in a serial
+run. Steps run here call serial kernels only (numba's work-queue threading layer must not be
+entered from two threads at once).
 """
 
 from __future__ import annotations
 
 import itertools
 import threading
+import time
 from collections.abc import Callable
+from typing import Any
 
 import numba
 
@@ -52,26 +58,32 @@ def in_threads(work: Callable[[int, int], object], n: int, min_chunk: int = 256,
         raise errors[0]
 
 
-def concurrently(background: Callable[[], object], foreground: Callable[[], object]) -> tuple[object, object]:
-    """``(background(), foreground())``, the first on another thread when there is more than one
-    numba thread; an exception in either is raised here."""
-    if numba.get_num_threads() < 2:
-        return background(), foreground()
-    out: list[object] = [None]
+def side_by_side(*steps: Callable[[], Any]) -> tuple[list[Any], list[float]]:
+    """Results of ``steps`` (called without arguments) and the seconds each took: the first
+    in the calling thread, the others each on a thread of its own when numba may use more than
+    one thread, else one after the other. An exception in any is raised here."""
+    results: list[Any] = [None] * len(steps)
+    seconds = [0.0] * len(steps)
     errors: list[BaseException] = []
 
-    def run() -> None:
+    def run(k: int) -> None:
+        t = time.perf_counter()
         try:
-            out[0] = background()
+            results[k] = steps[k]()
         except BaseException as exc:  # re-raised in the calling thread
             errors.append(exc)
+        seconds[k] = time.perf_counter() - t
 
-    thread = threading.Thread(target=run)
-    thread.start()
-    try:
-        fg = foreground()
-    finally:
-        thread.join()
+    if numba.get_num_threads() < 2 or len(steps) < 2:
+        for k in range(len(steps)):
+            run(k)
+    else:
+        threads = [threading.Thread(target=run, args=(k,)) for k in range(1, len(steps))]
+        for t in threads:
+            t.start()
+        run(0)
+        for t in threads:
+            t.join()
     if errors:
         raise errors[0]
-    return out[0], fg
+    return results, seconds

@@ -1,5 +1,6 @@
-"""Chunked threads for the online kernels: every item once, errors raised in the caller, and the
-detector's outputs the same with one thread as with several."""
+"""Work on plain threads (prc_slam.threads): chunks cover every item once, steps come back in
+order with their seconds, errors are raised in the caller, and the online detector's outputs are
+the same with one thread as with several."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numba
 import numpy as np
 import pytest
 
-from prc_slam.online.threads import concurrently, in_threads
+from prc_slam.threads import in_threads, side_by_side
 
 
 @pytest.fixture(params=[1, 2])
@@ -45,10 +46,15 @@ def test_errors_reach_the_caller(threads):
     with pytest.raises(ValueError, match="bad chunk"):
         in_threads(work, 1024, min_chunk=256)
     with pytest.raises(KeyError):
-        concurrently(lambda: {}["missing"], lambda: 1)
+        side_by_side(lambda: {}["missing"], lambda: 1)
     with pytest.raises(ZeroDivisionError):
-        concurrently(lambda: 1, lambda: 1 / 0)
-    assert concurrently(lambda: "a", lambda: "b") == ("a", "b")
+        side_by_side(lambda: 1, lambda: 1 / 0)
+
+
+def test_steps_side_by_side_in_order_with_their_seconds(threads):
+    out, sec = side_by_side(lambda: 1, lambda: np.arange(3), lambda: "c")
+    assert out[0] == 1 and out[2] == "c" and list(out[1]) == [0, 1, 2]
+    assert len(sec) == 3 and min(sec) >= 0
 
 
 def test_detector_outputs_do_not_depend_on_threads(hdl64_scans):
