@@ -409,29 +409,38 @@ def _radix_sort(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if n < 4096:
         order = np.argsort(keys, kind="mergesort")
         return order, keys[order]
-    k1, k2 = keys.copy(), np.empty(n, np.int64)
+    k1, k2 = keys.astype(np.int64).view(np.uint64), np.empty(n, np.uint64)  # the same order, >= 0
     i1, i2 = np.arange(n, dtype=np.int64), np.empty(n, np.int64)
-    flip = _radix_passes(k1, i1, k2, i2)
-    return (i2, k2) if flip else (i1, k1)
+    flip = radix_passes(k1, i1, k2, i2)
+    return (i2, k2.view(np.int64)) if flip else (i1, k1.view(np.int64))
 
 
 @njit(cache=True, nogil=True)
-def _radix_passes(k1, i1, k2, i2):
-    """Radix passes from (``k1``, ``i1``) into (``k2``, ``i2``) and back, 16 bits at a time up
-    to the largest key; True when the result ended in (``k2``, ``i2``)."""
+def radix_passes(k1, i1, k2, i2):
+    """Stable LSD radix sort of uint64 keys ``k1`` with their indices ``i1``, 16 bits at a time
+    up to the largest key, from (``k1``, ``i1``) into (``k2``, ``i2``) and back; a digit that is
+    the same for every key is skipped (the pass would change nothing). True when the result
+    ended in (``k2``, ``i2``)."""
     n = k1.shape[0]
-    kmax = k1.max()
-    cnt = np.empty(65537, np.int64)
-    shift = 0
+    kmax = k1.max() if n else np.uint64(0)
+    cnt = np.empty(65536, np.int64)
     flip = False
-    while (kmax >> shift) > 0:
+    for shift in range(0, 64, 16):
+        sh = np.uint64(shift)
+        if (kmax >> sh) == 0:
+            break
         cnt[:] = 0
         for i in range(n):
-            cnt[((k1[i] >> shift) & 0xFFFF) + 1] += 1
+            cnt[np.int64((k1[i] >> sh) & np.uint64(0xFFFF))] += 1
+        if cnt.max() == n:
+            continue  # every key has this digit
+        tot = 0
         for d in range(65536):
-            cnt[d + 1] += cnt[d]
+            c = cnt[d]
+            cnt[d] = tot
+            tot += c
         for i in range(n):
-            d = (k1[i] >> shift) & 0xFFFF
+            d = np.int64((k1[i] >> sh) & np.uint64(0xFFFF))
             j = cnt[d]
             k2[j] = k1[i]
             i2[j] = i1[i]
@@ -439,7 +448,6 @@ def _radix_passes(k1, i1, k2, i2):
         k1, k2 = k2, k1
         i1, i2 = i2, i1
         flip = not flip
-        shift += 16
     return flip
 
 

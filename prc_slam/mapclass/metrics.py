@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from prc_slam.voxels import VoxelGrid, find, group_members
+from prc_slam.voxels import VoxelGrid, find, group_members, radix_passes
 
 
 def local_density(points: np.ndarray, voxel: float) -> tuple[np.ndarray, VoxelGrid]:
@@ -282,37 +282,14 @@ def stable_argsort(key: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def _float_radix_passes(key, k1, i1, k2, i2):
-    """The passes of :func:`stable_argsort`; True when the order ended in ``i2``."""
-    n = key.shape[0]
+    """The passes of :func:`stable_argsort` (:func:`prc_slam.voxels.radix_passes` on the keys'
+    bit patterns in unsigned order); True when the order ended in ``i2``."""
     bits = (key + 0.0).view(np.uint64)  # + 0.0: -0.0 -> 0.0
     sign = np.uint64(1) << np.uint64(63)
-    for i in range(n):
+    for i in range(key.shape[0]):
         b = bits[i]
         k1[i] = ~b if b & sign else b | sign
-    cnt = np.empty(65536, np.int64)
-    flip = False
-    for shift in range(0, 64, 16):
-        sh = np.uint64(shift)
-        cnt[:] = 0
-        for i in range(n):
-            cnt[np.int64((k1[i] >> sh) & np.uint64(0xFFFF))] += 1
-        if cnt.max() == n:
-            continue  # every key has this digit
-        tot = 0
-        for d in range(65536):
-            c = cnt[d]
-            cnt[d] = tot
-            tot += c
-        for i in range(n):
-            d = np.int64((k1[i] >> sh) & np.uint64(0xFFFF))
-            j = cnt[d]
-            k2[j] = k1[i]
-            i2[j] = i1[i]
-            cnt[d] = j + 1
-        k1, k2 = k2, k1
-        i1, i2 = i2, i1
-        flip = not flip
-    return flip
+    return radix_passes(k1, i1, k2, i2)
 
 
 def region_growing_lists(normals, curvature, start, neighbours, cos_theta, max_curvature):
