@@ -736,7 +736,7 @@ def estimate_beam_offset(xyz: np.ndarray, max_offset: float = 0.1, samples: int 
 
     kernel = np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2)
 
-    def sharpness(n: float) -> float:
+    def sharpness(n: float) -> float:  # histogram at 0.005 deg, smoothed over sigma 0.01 deg
         return _elevation_sharpness(z, rho, n, kernel)
 
     coarse = np.arange(-max_offset, max_offset + 1e-9, 0.005)
@@ -916,7 +916,7 @@ class Organizer:
         self.clean_rings: bool | None = None
         self._concentration = 1.0
         self._cut: float | None = None
-        self._ring_order: np.ndarray | None = None  # rows of the first ring-major sweep's rings, in order
+        self._ring_order: np.ndarray | None = None  # ring order (rows) of the first sweep with distinct rows
         self._sensor: tuple[tuple, SpinningSensor] | None = None
         self.frames = 0
         self.warnings_total = 0
@@ -1185,17 +1185,18 @@ class Organizer:
         compensated sweep, e.g. KITTI's, bends each ring's elevation by up to a beam gap along
         the azimuth), so the nearest beam by median alone sends rings to a neighbour's row (KITTI 00
         frames 7-15: 5-7 rows doubled, 12-19 % of the points sharing a slot). The driver writes
-        the rings in the same order in every sweep: the first sweep's order (its nearest-beam
-        rows, when they are distinct) is kept, and the runs of every later sweep are aligned to
+        the rings in the same order in every sweep: the first sweep whose rings take distinct
+        nearest-beam rows sets that order, and the runs of every later sweep are aligned to
         it (:func:`_align_runs`). When they do not fit that order (over a beam gap off on average),
         a warning, and the nearest beams."""
         have = cnt > 0
         if self._ring_order is None:
             seq = nearest[have]
-            self._ring_order = seq.copy() if len(np.unique(seq)) == len(seq) else np.zeros(0, np.int64)
+            if len(seq) >= 2 and len(np.unique(seq)) == len(seq):  # else: the next sweep may set it
+                self._ring_order = seq.copy()
             return nearest
         seq = self._ring_order
-        if len(seq) < 2 or not have.any():
+        if not have.any():
             return nearest
         beam_ang = np.arctan(self.beam_te)
         gap = float(np.median(np.abs(np.diff(beam_ang))))

@@ -130,8 +130,7 @@ def _classify_lines(
 ):  # fmt: skip
     """The coarse classes of lines ``lo..hi - 1`` written into ``codes, t_prime, sv_out, phi_out``.
 
-    Per-line arrays live in buffers made once per call: allocating in the loop made two threads
-    running this slower than one (the allocator is shared)."""
+    Per-line arrays live in buffers made once per call, not once per line."""
     origin = np.zeros(3)
     width = lines.shape[1]
     pts_b, sv_b, phi_b = np.empty(width, np.int64), np.empty(width), np.empty(width)

@@ -47,7 +47,7 @@ def possible_curbs(xyz, codes, ground, valid, lines, z_line, t_high, look_back, 
     pts_b = np.empty(width, np.int64)  # per-line buffers, made once (no allocation in the loop)
     rng_b = np.empty(width)
     for li in range(n_lines):
-        m = K._line_returns_into(lines[li], valid, pts_b)
+        m = K.line_returns_into(lines[li], valid, pts_b)
         pts = pts_b[:m]
         first = 0
         if last_only:

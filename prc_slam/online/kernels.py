@@ -49,11 +49,11 @@ def line_returns(line, valid):
     """Slot indices of the returns of one scan line, in line order (``line`` is ``-1``-padded;
     slots without a return, the paper's missing points M, are skipped)."""
     pts = np.empty(line.shape[0], np.int64)
-    return pts[: _line_returns_into(line, valid, pts)]
+    return pts[: line_returns_into(line, valid, pts)]
 
 
 @njit(cache=True, nogil=True)
-def _line_returns_into(line, valid, pts):
+def line_returns_into(line, valid, pts):
     """:func:`line_returns` written into ``pts`` (at least the line's length); returns the count."""
     m = 0
     for j in range(line.shape[0]):
@@ -102,9 +102,9 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0, centred=False):
 @njit(cache=True, nogil=True)
 def line_statistics_into(xyz, valid, line, origin, min_step, centred, pts, sv, phi_hat):
     """:func:`line_statistics` written into ``pts, sv, phi_hat`` (each at least the line's
-    length: no allocation, so that threads running it do not contend for the allocator);
+    length: no allocation, for callers that reuse one set of buffers for many lines);
     returns the number of returns ``n`` (the results are the first ``n`` entries)."""
-    n = _line_returns_into(line, valid, pts)
+    n = line_returns_into(line, valid, pts)
     if n < 2:
         for k in range(n):
             sv[k] = 0.0
