@@ -35,6 +35,22 @@ def test_three_state_hmm_cusum_is_the_general_one(seed, n):
     assert K.hmm_cusum(x, means, 20.0, a0, a1, 10.0).shape == (n,)
 
 
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(0, 80))
+def test_evenly_spaced_three_state_hmm_cusum_is_the_general_one(seed, n):
+    """The one-exp filter (means m1 - a, m1, m1 + a) gives the general filter's decisions; far
+    samples (factors out of range) take the plain filter."""
+    rng = np.random.default_rng(seed)
+    m1, a = float(rng.uniform(-30, 30)), float(rng.uniform(20, 160))
+    means = np.array([m1 - a, m1, m1 + a])
+    means[2] = means[1] + (means[1] - means[0])  # evenly spaced in floating point
+    x = rng.choice(means, n) + rng.normal(0, rng.choice([5.0, 40.0]), n)
+    a0, a1 = stochastic(rng, 3), stochastic(rng, 3)
+    for sigma, h in [(20.0, 10.0), (float(rng.uniform(5, 50)), float(rng.uniform(0.5, 12))), (1.0, 5.0)]:
+        general = K._hmm_cusum_n(x, means, sigma, a0, a1, h)
+        np.testing.assert_array_equal(K._hmm_cusum3(x, means, sigma, a0, a1, h), general)
+
+
 def line_statistics_reference(xyz, valid, line, origin, min_step=0.0, centred=False):
     """The definition of :func:`K.line_statistics`, one angle at a time with ``_angle_deg``."""
     pts = np.array([s for s in line if s >= 0 and valid[s]], np.int64)

@@ -229,7 +229,7 @@ def _hmm_cusum_n(x, means, sigma, a0, a1, h):
 @njit(cache=True, nogil=True)
 def _hmm_cusum3(x, means, sigma, a0, a1, h):
     """:func:`hmm_cusum` with three states (the paper's -90 / 0 / 90 deg), the filter held in
-    scalars: the same operations in the same order, so the same values bit for bit."""
+    scalars (:func:`hmm_cusum3_into`)."""
     changed = np.empty(x.shape[0], np.bool_)
     hmm_cusum3_into(x, means, sigma, a0, a1, h, changed)
     return changed
@@ -237,7 +237,26 @@ def _hmm_cusum3(x, means, sigma, a0, a1, h):
 
 @njit(cache=True, nogil=True)
 def hmm_cusum3_into(x, means, sigma, a0, a1, h, changed):
-    """:func:`_hmm_cusum3` written into ``changed[:len(x)]`` (no allocation)."""
+    """:func:`_hmm_cusum3` written into ``changed[:len(x)]`` (no allocation).
+
+    Means spaced evenly (``m0 = m1 - a``, ``m2 = m1 + a``, as the paper's -90 / 0 / 90 deg and
+    T' -150 / 0 / 150 deg) take :func:`_hmm_cusum3_even_into`, one ``exp`` per sample; other
+    means, or samples so far out that its factors would overflow, the plain filter."""
+    a = means[1] - means[0]
+    s = a / (sigma * sigma)
+    far = 0.0
+    for k in range(x.shape[0]):
+        far = max(far, abs(x[k] - means[1]))
+    if means[2] - means[1] == a and a > 0.0 and 0.5 * a * s < 600.0 and far * s < 600.0:
+        _hmm_cusum3_even_into(x, means[1], a, sigma, a0, a1, h, changed)
+    else:
+        _hmm_cusum3_plain_into(x, means, sigma, a0, a1, h, changed)
+
+
+@njit(cache=True, nogil=True)
+def _hmm_cusum3_plain_into(x, means, sigma, a0, a1, h, changed):
+    """The three-state filter of :func:`hmm_cusum` held in scalars: the same operations in the
+    same order as :func:`_hmm_cusum_n`, so the same values bit for bit."""
     n = x.shape[0]
     for k in range(n):
         changed[k] = False
@@ -272,6 +291,71 @@ def hmm_cusum3_into(x, means, sigma, a0, a1, h, changed):
         f00, f01, f02 = p00 / l0, p01 / l0, p02 / l0
         f10, f11, f12 = p10 / l1, p11 / l1, p12 / l1
         state, w, start = _cusum_step(np.log(l1) - np.log(l0), k, state, w, start, h, changed)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cusum_step_ratio(ratio, k, state, big_w, start, big_h, changed):
+    """:func:`_cusum_step` on the exponentials: ``ratio = l1 / l0 = exp(LLR)``, ``big_w = exp(W)``,
+    ``big_h = exp(h)``; ``max(0, W + LLR)`` is ``max(1, big_w * ratio)``, and ``W > h`` is
+    ``big_w > big_h`` (exp is monotone: the same decisions, up to rounding, without a log)."""
+    if state == 1:
+        ratio = 1.0 / ratio
+    big_w = max(1.0, big_w * ratio)
+    if big_w == 1.0:
+        start = k + 1
+    elif big_w > big_h:
+        for j in range(start, k + 1):
+            changed[j] = state == 0
+        state = 1 - state
+        big_w = 1.0
+        start = k + 1
+    if state == 1:
+        changed[k] = True
+    return state, big_w, start
+
+
+@njit(cache=True, nogil=True)
+def _hmm_cusum3_even_into(x, m1, a, sigma, a0, a1, h, changed):
+    """:func:`hmm_cusum` for three states with means ``m1 - a, m1, m1 + a``, one ``exp`` per sample.
+
+    Both forward filters are normalised at every step, and the LLR is the log of a ratio of
+    their predictive likelihoods, so scaling the three emissions of a sample by one common
+    factor changes neither. Dividing the Gaussians by the middle state's,
+    ``e_j / e_1 = exp(-((x - m_j)^2 - (x - m_1)^2) / (2 sigma^2))``, leaves ``c / q``, 1 and
+    ``c q`` with ``q = exp((x - m1) a / sigma^2)`` and ``c = exp(-a^2 / (2 sigma^2))``; the CUSUM
+    runs on ``exp(LLR)`` (:func:`_cusum_step_ratio`). The caller keeps ``q`` and ``c`` in range."""
+    n = x.shape[0]
+    for k in range(n):
+        changed[k] = False
+    f00 = f01 = f02 = 1.0 / 3
+    f10 = f11 = f12 = 1.0 / 3
+    a000, a001, a002 = a0[0, 0], a0[0, 1], a0[0, 2]
+    a010, a011, a012 = a0[1, 0], a0[1, 1], a0[1, 2]
+    a020, a021, a022 = a0[2, 0], a0[2, 1], a0[2, 2]
+    a100, a101, a102 = a1[0, 0], a1[0, 1], a1[0, 2]
+    a110, a111, a112 = a1[1, 0], a1[1, 1], a1[1, 2]
+    a120, a121, a122 = a1[2, 0], a1[2, 1], a1[2, 2]
+    s = a / (sigma * sigma)
+    c = np.exp(-0.5 * a * s)
+    big_h = np.exp(h)
+    state = 0
+    big_w = 1.0
+    start = 0
+    for k in range(n):
+        q = np.exp((x[k] - m1) * s)
+        e0 = c / q
+        e2 = c * q
+        p00 = (f00 * a000 + f01 * a010 + f02 * a020) * e0
+        p10 = (f10 * a100 + f11 * a110 + f12 * a120) * e0
+        p01 = f00 * a001 + f01 * a011 + f02 * a021
+        p11 = f10 * a101 + f11 * a111 + f12 * a121
+        p02 = (f00 * a002 + f01 * a012 + f02 * a022) * e2
+        p12 = (f10 * a102 + f11 * a112 + f12 * a122) * e2
+        i0 = 1.0 / (p00 + p01 + p02)
+        i1 = 1.0 / (p10 + p11 + p12)
+        f00, f01, f02 = p00 * i0, p01 * i0, p02 * i0
+        f10, f11, f12 = p10 * i1, p11 * i1, p12 * i1
+        state, big_w, start = _cusum_step_ratio(i0 / i1, k, state, big_w, start, big_h, changed)
 
 
 @njit(cache=True, nogil=True)
