@@ -158,3 +158,46 @@ def test_simulated_hdl64_ground():
     precision, recall = (g & t).sum() / g.sum(), (g & t).sum() / t.sum()
     # measured 0.94 / 0.99 over 8 frames of this drive; the paper's rule gives 0.65 / 0.95
     assert precision > 0.9 and recall > 0.95, (precision, recall)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_fused_kernels_equal_the_step_kernels(seed):
+    """levelled_seed = levelled_rho_z + column_seed; cells_and_segments = cell_heights +
+    _ground_segments; column_ground on unit rays and ranges = column_ground on to_xyz."""
+    rng = np.random.default_rng(seed)
+    r, sensor, _ = _plane_sweep(float(rng.uniform(0, 10)), rows=24, cols=int(rng.integers(60, 300)))
+    bump = rng.random(r.shape) < 0.2
+    r[bump] *= rng.uniform(0.6, 1.2, int(bump.sum())).astype(np.float32)
+    r[rng.random(r.shape) < 0.1] = 0.0
+    valid = (r > 0) & (rng.random(r.shape) < 0.95)
+    xyz = sensor.to_xyz(r)
+    order = G.beam_order(xyz, valid, sensor.altitude)
+    rot = G.levelling_rotation(np.array([0.05, -0.03, 1.0]) / np.linalg.norm([0.05, -0.03, 1.0]))
+    tan7 = float(np.tan(np.radians(7.0)))
+    rho, z = G.levelled_rho_z(xyz, valid, rot)
+    seed_ref = G.column_seed(rho, z, valid, order, -1.8, 0.4, tan7, 0.05)
+    for rays, ranges, scaled in ((sensor.unit_rays, r, True), (xyz, G._NO_RANGES, False)):
+        rho2, z2, seed2, n = G.levelled_seed(
+            G.planar_rays(rays), ranges, scaled, valid, rot, order, -1.8, 0.4, tan7, 0.05
+        )
+        assert np.array_equal(rho2, rho) and np.array_equal(z2, z) and np.array_equal(seed2, seed_ref)
+        assert n == seed_ref.sum()
+    segments = rng.integers(0, 7, r.shape).astype(np.int32)
+    smooth = rng.random(r.shape) < 0.7
+    cell_cols = max(1, round(r.shape[1] * 3.0 / 360.0))
+    height = G.cell_heights(rho, z, valid, seed_ref, cell_cols, 1.0, 200)
+    ok = G._ground_segments(segments, smooth, seed_ref, 0.5)
+    height2, ok2 = G.cells_and_segments(rho, z, seed_ref, cell_cols, 1.0, 200, segments, smooth, 0.5, 12, True)
+    assert np.array_equal(height, height2, equal_nan=True)
+    assert np.array_equal(ok, ok2[: len(ok)]) and not ok2[len(ok) :].any()
+    cfg = PRCConfig.preset("multibeam")
+    try:
+        a = G.column_ground(xyz, valid, cfg, altitude=sensor.altitude, segments=segments, smooth=smooth)
+    except G.GroundModelError:
+        return
+    b = G.column_ground(
+        sensor.unit_rays, valid, cfg, altitude=sensor.altitude, segments=segments, smooth=smooth, ranges=r, n_ids=9
+    )
+    assert np.array_equal(a.ground, b.ground) and np.array_equal(a.seed, b.seed) and a.counts == b.counts
+    assert np.array_equal(a.plane, b.plane) and a.z_ref == b.z_ref

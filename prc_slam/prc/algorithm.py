@@ -281,14 +281,17 @@ def prc_block(
         assert sensor is not None  # checked by _column_ground_applies
         try:
             # ground is a class of the returns that are not isolated: supported or one-sided
+            xyz, rays_ranges = _rays_and_ranges(sensor, ranges)
             ground_result = column_ground(
-                sensor.to_xyz(ranges),
+                xyz,
                 supported | one_sided,
                 config,
                 altitude=getattr(sensor, "altitude", None),
                 segments=segments,
                 smooth=smooth,
                 state=ground_state,
+                ranges=rays_ranges,
+                n_ids=int(max(glob.max(initial=0), v_offset + nv)) + 1,
             )
         except GroundModelError as exc:
             ground_error = str(exc)
@@ -308,6 +311,15 @@ def prc_block(
         ground=ground_result,
         ground_error=ground_error,
     )
+
+
+def _rays_and_ranges(sensor: SensorModel, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Arguments ``xyz, ranges`` of :func:`column_ground` for a block: the sensor's unit rays and
+    the ranges (the coordinates ``to_xyz`` would give are then computed where needed), or the
+    coordinates (and None) from a sensor model with its own ``to_xyz``."""
+    if type(sensor).to_xyz is not SensorModel.to_xyz or sensor.unit_rays.shape[:2] != ranges.shape:
+        return sensor.to_xyz(ranges), None  # (raises ScanError on a shape mismatch)
+    return sensor.unit_rays, ranges
 
 
 def _column_ground_applies(config: PRCConfig, sensor: SensorModel | None) -> bool:

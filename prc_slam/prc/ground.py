@@ -52,6 +52,9 @@ from numba import njit
 
 log = logging.getLogger("prc_slam.prc.ground")
 
+#: stands for the ranges where the kernels get coordinates rather than rays (never read)
+_NO_RANGES = np.zeros((1, 1), np.float32)
+
 
 class GroundModelError(ValueError):
     """The sweep does not show the ground below the sensor that the column ground assumes."""
@@ -107,9 +110,16 @@ def beam_order(xyz: np.ndarray, valid: np.ndarray, altitude: np.ndarray | None =
 
 
 def ground_plane(
-    xyz: np.ndarray, valid: np.ndarray, order: np.ndarray, max_tilt_deg: float = 30.0
+    xyz: np.ndarray,
+    valid: np.ndarray,
+    order: np.ndarray,
+    max_tilt_deg: float = 30.0,
+    ranges: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """Step 0: plane ``n . p + d = 0`` (``n`` unit, ``n_z > 0``) of the ground below the sensor.
+
+    ``xyz`` are the slots' coordinates, or with ``ranges`` their unit rays (float32, the
+    coordinates then being ``xyz * ranges``, computed where needed).
 
     Returns
     -------
@@ -123,7 +133,9 @@ def ground_plane(
         Fewer than 30 supporting returns, or the plane tilted more than ``max_tilt_deg``.
     """
     low = np.ascontiguousarray(order[: max(1, len(order) // 3)])
-    pts = _below_sensor(xyz, valid, low, max(1, len(low) * valid.shape[1] // 8000))
+    scaled = ranges is not None
+    rng = ranges if scaled else _NO_RANGES
+    pts = _below_sensor(xyz, rng, scaled, valid, low, max(1, len(low) * valid.shape[1] // 8000))
     if len(pts) < 30:
         raise GroundModelError(f"only {len(pts)} returns below the sensor in the lowest third of the beams")
     z = pts[:, 2]
@@ -153,17 +165,26 @@ def ground_plane(
     return plane, near
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _coord(rays, ranges, scaled, r, c, a):
+    """Coordinate ``a`` of slot ``(r, c)``: ``rays * ranges`` in float32 (as
+    :meth:`SensorModel.to_xyz` computes it) when ``scaled``, else ``rays`` holds the coordinates."""
+    v = rays[r, c, a]
+    return v * ranges[r, c] if scaled else v
+
+
 @njit(cache=True, nogil=True)
-def _below_sensor(xyz, valid, rows, stride):
-    """Returns of ``rows`` below the sensor (z < 0) in every ``stride``-th column."""
+def _below_sensor(rays, ranges, scaled, valid, rows, stride):
+    """Returns of ``rows`` below the sensor (z < 0) in every ``stride``-th column (coordinates
+    from :func:`_coord`)."""
     C = valid.shape[1]
     out = np.empty((len(rows) * (C // stride + 1), 3), np.float64)
     k = 0
     for r in rows:
         for c in range(0, C, stride):
-            if valid[r, c] and xyz[r, c, 2] < 0.0:
+            if valid[r, c] and _coord(rays, ranges, scaled, r, c, 2) < 0.0:
                 for a in range(3):
-                    out[k, a] = xyz[r, c, a]
+                    out[k, a] = _coord(rays, ranges, scaled, r, c, a)
                 k += 1
     return out[:k]
 
@@ -263,6 +284,124 @@ def column_seed(rho, z, valid, order, z_ref, start, tan_slope, step):
 
 
 @njit(cache=True, nogil=True)
+def levelled_seed(rays, ranges, scaled, valid, rot, order, z_ref, start, tan_slope, step):
+    """:func:`levelled_rho_z` and :func:`column_seed` in one pass over the rows, lowest beam
+    first: each row is levelled (a loop without branches, which vectorises), then every
+    column's walk (its last ground return kept per column) takes that row. Same result as the
+    two kernels.
+
+    ``rays`` are planar, ``(3, rows, cols)`` (:func:`planar_rays`): the unit rays when
+    ``scaled`` (coordinates ``rays * ranges`` in float32, as :meth:`SensorModel.to_xyz`
+    computes them), else the coordinates.
+
+    Returns
+    -------
+    rho, z : float32 (rows, cols)
+    seed : bool (rows, cols)
+    n_seed : int
+    """
+    R, C = valid.shape
+    rho = np.zeros((R, C), np.float32)
+    z = np.zeros((R, C), np.float32)
+    seed = np.zeros((R, C), np.bool_)
+    have = np.zeros(C, np.bool_)
+    rho_g = np.zeros(C, np.float64)
+    z_g = np.zeros(C, np.float64)
+    r00, r01, r02 = rot[0, 0], rot[0, 1], rot[0, 2]
+    r10, r11, r12 = rot[1, 0], rot[1, 1], rot[1, 2]
+    r20, r21, r22 = rot[2, 0], rot[2, 1], rot[2, 2]
+    n_seed = 0
+    for k in range(R):
+        r = order[k]
+        vr = valid[r]
+        rx = rays[0, r]
+        ry = rays[1, r]
+        rz = rays[2, r]
+        rr = ranges[r] if scaled else ranges[0]
+        rho_r = rho[r]
+        z_r = z[r]
+        for c in range(C):
+            x0 = rx[c] * rr[c] if scaled else rx[c]
+            y0 = ry[c] * rr[c] if scaled else ry[c]
+            z0 = rz[c] * rr[c] if scaled else rz[c]
+            x = r00 * x0 + r01 * y0 + r02 * z0
+            y = r10 * x0 + r11 * y0 + r12 * z0
+            zz = np.float32(r20 * x0 + r21 * y0 + r22 * z0)
+            hh = np.float32(np.sqrt(x * x + y * y))
+            z_r[c] = zz if vr[c] else np.float32(0.0)
+            rho_r[c] = hh if vr[c] else np.float32(0.0)
+        seed_r = seed[r]
+        for c in range(C):
+            if not vr[c]:
+                continue
+            if not have[c]:
+                if abs(z_r[c] - z_ref) < start:
+                    have[c] = True
+                    rho_g[c] = rho_r[c]
+                    z_g[c] = z_r[c]
+                    seed_r[c] = True
+                    n_seed += 1
+                continue
+            d = rho_r[c] - rho_g[c]
+            if d > 0.0 and abs(z_r[c] - z_g[c]) <= tan_slope * d + step:
+                seed_r[c] = True
+                n_seed += 1
+                rho_g[c] = rho_r[c]
+                z_g[c] = z_r[c]
+    return rho, z, seed, n_seed
+
+
+_planar: list[tuple[np.ndarray, np.ndarray]] = []
+
+
+def planar_rays(xyz: np.ndarray, cache: bool = False) -> np.ndarray:
+    """``(rows, cols, 3)`` float32 coordinates or rays as ``(3, rows, cols)`` (contiguous planes);
+    with ``cache``, kept for the last few arrays given (a sensor's unit rays, the same array
+    object from sweep to sweep)."""
+    if cache:
+        for src, out in _planar:
+            if src is xyz:
+                return out
+    out = np.ascontiguousarray(np.moveaxis(np.asarray(xyz, dtype=np.float32), 2, 0))
+    if cache:
+        _planar.insert(0, (xyz, out))
+        del _planar[4:]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def cells_and_segments(rho, z, seed, cell_cols, cell_m, n_bins, segments, smooth, share, n_ids, use_segments):
+    """:func:`cell_heights` and, with ``use_segments``, :func:`_ground_segments` in one pass
+    (``n_ids``: any bound above the largest segment id). Same results as the two kernels."""
+    R, C = seed.shape
+    n_sec = (C + cell_cols - 1) // cell_cols
+    total = np.zeros(n_sec * n_bins)
+    count = np.zeros(n_sec * n_bins)
+    seg_total = np.zeros(n_ids if use_segments else 1, np.int64)
+    seg_hits = np.zeros(n_ids if use_segments else 1, np.int64)
+    sec = _sectors(C, cell_cols, n_bins)
+    for r in range(R):
+        for c in range(C):
+            sd = seed[r, c]
+            if sd:
+                k = sec[c] + min(int(rho[r, c] / cell_m), n_bins - 1)
+                total[k] += z[r, c]
+                count[k] += 1.0
+            if use_segments and smooth[r, c]:
+                s = segments[r, c]
+                seg_total[s] += 1
+                seg_hits[s] += sd
+    height = np.full(n_sec * n_bins, np.nan)
+    for k in range(n_sec * n_bins):
+        if count[k] >= 3.0:
+            height[k] = total[k] / count[k]
+    ok = np.zeros(len(seg_total), np.bool_)
+    for i in range(1, len(seg_total)):
+        ok[i] = seg_total[i] > 0 and seg_hits[i] >= share * seg_total[i]
+    return height, ok
+
+
+@njit(cache=True, nogil=True)
 def cell_heights(rho, z, valid, seed, cell_cols, cell_m, n_bins):
     """Step 2: mean seed height per polar cell (``cell_cols`` columns by ``cell_m`` of horizontal
     range; cell of slot ``(r, c)``: :func:`_cell`).
@@ -295,6 +434,15 @@ def _cell(rho, c, cell_cols, cell_m, n_bins):
 
 
 @njit(cache=True, nogil=True)
+def _sectors(C, cell_cols, n_bins):
+    """First cell of each column's azimuth sector (:func:`_cell` without its integer division)."""
+    sec = np.empty(C, np.int64)
+    for c in range(C):
+        sec[c] = (c // cell_cols) * n_bins
+    return sec
+
+
+@njit(cache=True, nogil=True)
 def _ground_segments(segments, smooth, seed, share):
     """Step 3: which smooth segments (ids of ``segments``) are at least ``share`` seed."""
     R, C = segments.shape
@@ -320,24 +468,36 @@ def _grow(
     rho, z, valid, seed, height, cell_cols, cell_m, n_bins, tau, segments, smooth, seg_ok, use_cells, use_segments
 ):
     """Steps 2 and 3 per slot: seeds consistent with their cell, plus smooth returns of
-    ground-dominated segments within ``tau`` of their cell's height."""
+    ground-dominated segments within ``tau`` of their cell's height. Also returns the number of
+    seeds dropped and of returns added."""
     R, C = valid.shape
     out = np.zeros((R, C), np.bool_)
+    dropped = 0
+    added = 0
+    sec = _sectors(C, cell_cols, n_bins)
     for r in range(R):
         for c in range(C):
             if not valid[r, c]:
                 continue
+            sd = seed[r, c]
+            # only seeds and smooth returns of ground-dominated segments can be ground
+            if not (sd or (use_segments and smooth[r, c] and seg_ok[segments[r, c]])):
+                continue
             near = True
             has = False
             if use_cells:
-                h = height[_cell(rho[r, c], c, cell_cols, cell_m, n_bins)]
+                h = height[sec[c] + min(int(rho[r, c] / cell_m), n_bins - 1)]
                 has = not np.isnan(h)
                 near = has and abs(z[r, c] - h) < tau
-            if seed[r, c]:
-                out[r, c] = near or not has
-            elif use_segments and has and near and smooth[r, c] and seg_ok[segments[r, c]]:
+            if sd:
+                g = near or not has
+                out[r, c] = g
+                if not g:
+                    dropped += 1
+            elif has and near:
                 out[r, c] = True
-    return out
+                added += 1
+    return out, dropped, added
 
 
 def column_ground(
@@ -350,13 +510,17 @@ def column_ground(
     smooth: np.ndarray | None = None,
     state: GroundState | None = None,
     steps: tuple[str, ...] = ("seed", "cells", "segments", "temporal"),
+    ranges: np.ndarray | None = None,
+    n_ids: int | None = None,
 ) -> GroundResult:
     """Ground mask of one sweep (module docstring, steps 0-4).
 
     Parameters
     ----------
     xyz : float (rows, cols, 3)
-        Sensor-frame coordinates of the slots (z roughly up).
+        Sensor-frame coordinates of the slots (z roughly up); with ``ranges``, the slots' unit
+        rays (``SensorModel.unit_rays``), the coordinates then being ``xyz * ranges`` (float32,
+        as :meth:`SensorModel.to_xyz` gives them; computed where needed, not stored).
     valid : bool (rows, cols)
         Slots with a return.
     config : PRCConfig
@@ -369,18 +533,45 @@ def column_ground(
         Carried between sweeps of one recording (step 4); updated in place.
     steps : tuple of str
         Steps to run (``seed`` is always run); for measuring each step's share.
+    ranges : float32 (rows, cols), optional
+        The range image, when ``xyz`` holds unit rays.
+    n_ids : int, optional
+        A bound above the largest id in ``segments`` (else found by a pass over it).
 
     Raises
     ------
     GroundModelError
         No ground below the sensor in this sweep and no previous sweep to fall back on.
     """
+    plane, tilt, z_ref, order = ground_frame(xyz, valid, altitude=altitude, state=state, steps=steps, ranges=ranges)
+    return ground_from_frame(
+        xyz, valid, config, plane, tilt, z_ref, order, segments=segments, smooth=smooth, steps=steps, ranges=ranges,
+        n_ids=n_ids,
+    )  # fmt: skip
+
+
+def ground_frame(
+    xyz: np.ndarray,
+    valid: np.ndarray,
+    *,
+    altitude: np.ndarray | None = None,
+    state: GroundState | None = None,
+    steps: tuple[str, ...] = ("seed", "cells", "segments", "temporal"),
+    ranges: np.ndarray | None = None,
+) -> tuple[np.ndarray, float, float, np.ndarray]:
+    """Steps 0 and 4 of :func:`column_ground` (same parameters): the ground plane, its tilt
+    (deg), the ground height ``z_ref`` below the sensor and the beam order."""
+    scaled = ranges is not None
     xyz = np.asarray(xyz, dtype=np.float32)
     valid = np.asarray(valid, dtype=bool)
-    order = beam_order(xyz, valid, altitude)
+    alt_ok = altitude is not None and len(altitude) == valid.shape[0] and bool(np.isfinite(altitude).all())
+    if scaled and not alt_ok:  # the elevations are measured from the coordinates
+        order = beam_order(xyz * np.asarray(ranges, np.float32)[..., None], valid, altitude)
+    else:
+        order = beam_order(xyz, valid, altitude)
     temporal = state is not None and "temporal" in steps
     try:
-        plane, _support = ground_plane(xyz, valid, order)
+        plane, _support = ground_plane(xyz, valid, order, ranges=ranges)
     except GroundModelError as exc:
         if not temporal or state.plane is None:
             raise
@@ -388,42 +579,60 @@ def column_ground(
         plane = state.plane
         state.reused += 1
     tilt = float(np.degrees(np.arccos(np.clip(plane[2], -1.0, 1.0))))
-    rho, z = levelled_rho_z(xyz, valid, levelling_rotation(plane[:3]))
     z_ref = float(-plane[3])
     if temporal:
         if state.z_ref is not None:
             z_ref = state.smoothing * state.z_ref + (1.0 - state.smoothing) * z_ref
         state.plane, state.z_ref = plane, z_ref
         state.sweeps += 1
-    seed = column_seed(
-        rho,
-        z,
-        valid,
-        order,
-        z_ref,
-        float(config.ground_start),
-        float(np.tan(np.radians(config.ground_slope_deg))),
-        float(config.ground_step),
-    )
-    counts = {"seed": int(seed.sum())}
+    return plane, tilt, z_ref, order
+
+
+def ground_from_frame(
+    xyz: np.ndarray,
+    valid: np.ndarray,
+    config: object,
+    plane: np.ndarray,
+    tilt: float,
+    z_ref: float,
+    order: np.ndarray,
+    *,
+    segments: np.ndarray | None = None,
+    smooth: np.ndarray | None = None,
+    steps: tuple[str, ...] = ("seed", "cells", "segments", "temporal"),
+    ranges: np.ndarray | None = None,
+    n_ids: int | None = None,
+    seeded: tuple[np.ndarray, np.ndarray, np.ndarray, int] | None = None,
+) -> GroundResult:
+    """Steps 1-3 of :func:`column_ground` given its steps 0 and 4 (:func:`ground_frame`).
+    ``seeded``: the result of :func:`seed_in_frame` when already computed."""
+    if seeded is None:
+        seeded = seed_in_frame(xyz, valid, config, plane, z_ref, order, ranges=ranges)
+    rho, z, seed, n_seed = seeded
+    counts = {"seed": int(n_seed)}
     use_cells = "cells" in steps
     use_segments = "segments" in steps and segments is not None and smooth is not None
     if not (use_cells or use_segments):
         return GroundResult(seed, seed, plane, tilt, z_ref, counts)
+    valid = np.asarray(valid, dtype=bool)
     cols = valid.shape[1]
     cell_cols = max(1, round(cols * config.ground_cell_deg / 360.0))
     n_bins = int(np.ceil(200.0 / config.ground_cell_m))
     cell_m = float(config.ground_cell_m)
-    height = cell_heights(rho, z, valid, seed, cell_cols, cell_m, n_bins)
     if use_segments:
         seg = np.ascontiguousarray(segments, dtype=np.int32)
         smooth_arr = np.ascontiguousarray(smooth, dtype=bool)
-        seg_ok = _ground_segments(seg, smooth_arr, seed, float(config.ground_segment_share))
+        if n_ids is None:
+            n_ids = max(1, int(seg.max()) + 1) if seg.size else 1
     else:
         seg = np.zeros(valid.shape, np.int32)
-        seg_ok = np.zeros(1, dtype=bool)
         smooth_arr = np.zeros(valid.shape, dtype=bool)
-    ground = _grow(
+        n_ids = 1
+    height, seg_ok = cells_and_segments(
+        rho, z, seed, cell_cols, cell_m, n_bins, seg, smooth_arr, float(config.ground_segment_share), int(n_ids),
+        use_segments,
+    )  # fmt: skip
+    ground, dropped, added = _grow(
         rho,
         z,
         valid,
@@ -439,6 +648,33 @@ def column_ground(
         use_cells,
         use_segments,
     )
-    counts["dropped_by_cells"] = int((seed & ~ground).sum())
-    counts["added_by_segments"] = int((ground & ~seed).sum())
+    counts["dropped_by_cells"] = int(dropped)
+    counts["added_by_segments"] = int(added)
     return GroundResult(ground, seed, plane, tilt, z_ref, counts)
+
+
+def seed_in_frame(
+    xyz: np.ndarray,
+    valid: np.ndarray,
+    config: object,
+    plane: np.ndarray,
+    z_ref: float,
+    order: np.ndarray,
+    *,
+    ranges: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Step 1 of :func:`column_ground` (levelled horizontal range and height of every slot,
+    the column seed and its size), which needs no PRC segments (:func:`levelled_seed`)."""
+    scaled = ranges is not None
+    return levelled_seed(
+        planar_rays(xyz, cache=scaled),
+        np.asarray(ranges, dtype=np.float32) if scaled else _NO_RANGES,
+        scaled,
+        np.asarray(valid, dtype=bool),
+        levelling_rotation(plane[:3]),
+        order,
+        z_ref,
+        float(config.ground_start),
+        float(np.tan(np.radians(config.ground_slope_deg))),
+        float(config.ground_step),
+    )
