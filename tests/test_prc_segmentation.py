@@ -236,3 +236,32 @@ def test_forest_ring_density_for_spinning_sensors():
     # a last, shorter window is normalised by its own length
     g7 = column_density_ground(smooth[:, :14], PRCConfig(mode="forest", density_window=7), axis="rows")
     assert g7[2, 7:14].all()  # ring 2, columns 7..13: 4 of 7 smooth
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.booleans(), st.integers(1, 7), st.integers(1, 40))
+def test_fused_kernels_equal_the_step_kernels(seed, wrap, rows, cols):
+    """fill_holes_sized = fill_holes + bincount; combine_codes = combine + class_codes."""
+    rng = np.random.default_rng(seed)
+    fg = rng.random((rows, cols)) < 0.5
+    holes = ~fg & (rng.random((rows, cols)) < 0.6)
+    lab, n = kernels.connected_components(fg, wrap)
+    filled, size = kernels.fill_holes_sized(lab, holes, wrap, n)
+    assert np.array_equal(filled, kernels.fill_holes(lab, holes, wrap))
+    assert np.array_equal(size, np.bincount(filled.ravel(), minlength=n + 1))
+    ranges = (rng.random((rows, cols)) < 0.9) * rng.uniform(1, 50, (rows, cols)).astype(np.float32)
+    supported = (ranges > 0) & (rng.random((rows, cols)) < 0.8)
+    smooth_lut = rng.random(n + 1) < 0.5
+    smooth_lut[0] = False
+    smooth, small = kernels.split_smooth(filled, smooth_lut)
+    dilated = kernels.dilate4(small, 2, wrap)
+    v_local, _ = kernels.connected_components(dilated, wrap)
+    glob = (np.arange(n + 1) + 5).astype(np.int32)
+    glob[0] = 0
+    seg, nonsmooth = kernels.combine(filled, glob, smooth, small, dilated, v_local, 100, supported)
+    ground = int(rng.choice(glob)) if n else 0
+    codes = kernels.class_codes(ranges, supported, smooth, nonsmooth, seg, ground, 3, 4, 5, 6, 7)
+    seg2, nonsmooth2, codes2 = kernels.combine_codes(
+        ranges, filled, glob, smooth, small, dilated, v_local, 100, supported, ground, 3, 4, 5, 6, 7
+    )
+    assert np.array_equal(seg, seg2) and np.array_equal(nonsmooth, nonsmooth2) and np.array_equal(codes, codes2)

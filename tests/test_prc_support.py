@@ -209,3 +209,33 @@ def test_eq9_both_axes_catches_crease_across_scan_lines():
     both = kernels.gradient_background(r, sup, 0.3, 0.05, False, False, True)
     assert not only_in.any()
     assert both[2].all() and not both[4].any()
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.integers(0, 2**31 - 1),
+    st.booleans(),
+    st.sampled_from([None, 60.0, 85.0]),
+    st.floats(0.0, 89.0),
+    st.floats(0.01, 2.0),
+)
+def test_spinning_thresholds_equal_support_thresholds(seed, adaptive, one_sided, beta, xi):
+    """The one-pass thresholds of a spinning block are support_thresholds' values, bit for bit."""
+    from prc_slam.prc.algorithm import _all_thresholds
+    from prc_slam.scan import SpinningSensor
+
+    rng = np.random.default_rng(seed)
+    rows, cols = int(rng.integers(1, 9)), int(rng.integers(5, 60))
+    sensor = SpinningSensor.create(np.sort(rng.uniform(-0.4, 0.2, rows)), cols)
+    r = (rng.uniform(0.0, 90.0, (rows, cols)) * (rng.random((rows, cols)) < 0.8)).astype(np.float32)
+    cfg = PRCConfig(
+        adaptive=adaptive, adaptive_incidence_deg=beta, one_sided_incidence_deg=one_sided, xi_s=xi, xi_p=2 * xi
+    )
+    got = _all_thresholds(r, cfg, sensor, one_sided is not None)
+    want = support_thresholds(r, cfg, sensor) if adaptive else (np.full_like(r, xi), np.full_like(r, 2 * xi))
+    if one_sided is not None:
+        want = (*want, *support_thresholds(r, cfg, sensor, one_sided))
+    else:
+        want = (*want, *want)
+    for a, b in zip(got, want, strict=True):
+        assert a.dtype == np.float32 and np.array_equal(a, b)

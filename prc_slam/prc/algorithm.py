@@ -107,6 +107,36 @@ def support_thresholds(
     return xi_s, xi_p
 
 
+def _all_thresholds(
+    ranges: np.ndarray, config: PRCConfig, sensor: SensorModel | None, second: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`support_thresholds` and, with ``second``, the one-sided rule's (else the first pair
+    again); for a spinning sensor in one pass (:func:`kernels.spinning_thresholds`)."""
+    if (
+        (config.adaptive or second)
+        and isinstance(sensor, SpinningSensor)
+        and type(sensor).neighbour_spacing is SpinningSensor.neighbour_spacing
+        and ranges.shape == (sensor.rows, sensor.cols)
+        and ranges.dtype == np.float32
+    ):
+        beta2 = config.one_sided_incidence_deg if second else config.adaptive_incidence_deg
+        return kernels.spinning_thresholds(
+            ranges,
+            np.float32(config.xi_s),
+            np.float32(config.xi_p),
+            sensor.row_step().astype(np.float32),
+            np.float32(2.0 * np.pi / sensor.cols),
+            np.float32(np.tan(np.radians(config.adaptive_incidence_deg))),
+            config.adaptive,
+            np.float32(np.tan(np.radians(beta2))),
+            second,
+        )
+    xi_s, xi_p = support_thresholds(ranges, config, sensor)
+    if not second:
+        return xi_s, xi_p, xi_s, xi_p
+    return (xi_s, xi_p, *support_thresholds(ranges, config, sensor, config.one_sided_incidence_deg))
+
+
 def support_counts_needed(config: PRCConfig) -> tuple[int, int]:
     """Integer forms of eq. (4): ``C_in >= rho_c |N_in-slice|`` and ``C_adj >= rho_c |N_adj-slice|``.
 
@@ -127,12 +157,9 @@ def support_and_background(
     With ``config.one_sided_incidence_deg`` the one-sided points come from a second pass over
     the unsupported returns under thresholds at that incidence (see
     :func:`kernels.support_and_gradient`)."""
-    xi_s, xi_p = support_thresholds(ranges, config, sensor)
     need_in, need_adj = support_counts_needed(config)
     second = config.one_sided_incidence_deg is not None
-    xi_s2, xi_p2 = (
-        support_thresholds(ranges, config, sensor, config.one_sided_incidence_deg) if second else (xi_s, xi_p)
-    )
+    xi_s, xi_p, xi_s2, xi_p2 = _all_thresholds(ranges, config, sensor, second)
     return kernels.support_and_gradient(
         ranges,
         xi_s,
@@ -234,19 +261,24 @@ def prc_block(
     # Step 3: H_b.
     foreground = supported & ~grad
     cc, n = kernels.connected_components(foreground, wrap)
-    h_local = kernels.fill_holes(cc, grad, wrap)
+    h_local, local_size = kernels.fill_holes_sized(cc, grad, wrap, n)
 
     glob = np.arange(n + 1, dtype=np.int64) + (state.next_label - 1)
     glob[0] = 0
     state.next_label += n
+    relabel = {}
     if carry and state.last_row is not None and state.last_row.shape == (cols,):
-        for s, t in boundary_relabel(h_local[0], state.last_row, config.boundary_votes).items():
+        relabel = boundary_relabel(h_local[0], state.last_row, config.boundary_votes)
+        for s, t in relabel.items():
             glob[s] = t
 
     # Step 4: V_b from the segments smaller than A (eq. 11), sizes counted after relabelling.
-    local_size = np.bincount(h_local.ravel(), minlength=n + 1)
-    uniq, inv = np.unique(glob[1:], return_inverse=True)
-    seg_area = np.bincount(inv, weights=local_size[1:], minlength=len(uniq))
+    if relabel:
+        uniq, inv = np.unique(glob[1:], return_inverse=True)
+        seg_area = np.bincount(inv, weights=local_size[1:], minlength=len(uniq))
+    else:  # ids 1..n map to distinct, increasing stream ids
+        uniq, inv = glob[1:], np.arange(n, dtype=np.intp)
+        seg_area = local_size[1:].astype(np.float64)
     smooth_lut = np.zeros(n + 1, dtype=bool)
     smooth_lut[1:] = seg_area[inv] >= config.A
     smooth, small = kernels.split_smooth(h_local, smooth_lut)
@@ -257,10 +289,6 @@ def prc_block(
 
     # Step 5: R_b. Points of small segments, and supported points left unlabelled by hole
     # filling that the dilation reached, take their V_b label; smooth segments keep H_b.
-    segments, nonsmooth = kernels.combine(
-        h_local, glob.astype(np.int32), smooth, small, dilated, v_local, v_offset, supported
-    )
-
     # Step 6: classification. Urban: the largest smooth patch is ground, other smooth patches
     # building; forest: smooth patches are trunks, ground comes from eq. (12).
     urban = config.mode == "urban"
@@ -269,8 +297,9 @@ def prc_block(
     if urban and not columns:
         is_smooth = seg_area >= config.A
         ground = _ground_segment(uniq[is_smooth], seg_area[is_smooth], state if carry else None)
-    out = kernels.class_codes(
-        ranges, supported, smooth, nonsmooth, segments, ground,
+    # (step 5 and step 6's codes in one pass)
+    segments, _nonsmooth, out = kernels.combine_codes(
+        ranges, h_local, glob.astype(np.int32), smooth, small, dilated, v_local, v_offset, supported, ground,
         L.BUILDING if urban else L.TRUNK, L.GROUND, L.VEGETATION, L.NOISE, L.UNCLASSIFIED,
     )  # fmt: skip
     if not urban:
@@ -297,7 +326,7 @@ def prc_block(
             ground_error = str(exc)
             log.debug("PRC column ground: no ground in this sweep: %s", exc)
         else:
-            out[ground_result.ground] = L.GROUND
+            np.copyto(out, np.uint8(L.GROUND), where=ground_result.ground)
 
     if carry:
         state.last_row = segments[-1].copy()

@@ -80,6 +80,49 @@ def support_counts(ranges, xi_s, xi_p, half_in, wrap, reach=0):
     return c_adj, c_in
 
 
+@njit(cache=True, nogil=True)
+def spinning_thresholds(ranges, xi_s, xi_p, row_step, col_step, factor, adaptive, factor2, second):
+    """The support thresholds of a spinning sensor's block and, with ``second``, those of the
+    one-sided rule, in one pass (float32, the same values as ``support_thresholds`` gives
+    from ``SpinningSensor.neighbour_spacing``): ``max(xi_s, factor * (r * row_step[row]))``
+    and ``max(xi_p, factor * (r * col_step))``, the constants alone without ``adaptive``;
+    ``factor2`` for the one-sided rule's pair (the first pair again without ``second``).
+
+    Returns
+    -------
+    xi_s, xi_p, xi_s2, xi_p2 : float32 arrays, shape (rows, cols)
+    """
+    R, C = ranges.shape
+    out_s = np.empty((R, C), np.float32)
+    out_p = np.empty((R, C), np.float32)
+    out_s2 = np.empty((R, C), np.float32) if second else out_s
+    out_p2 = np.empty((R, C), np.float32) if second else out_p
+    for r in range(R):
+        rs = row_step[r]
+        rr = ranges[r]
+        a_s = out_s[r]
+        a_p = out_p[r]
+        b_s = out_s2[r]
+        b_p = out_p2[r]
+        for c in range(C):
+            s_adj = rr[c] * rs
+            s_in = rr[c] * col_step
+            if adaptive:
+                v = factor * s_adj
+                a_s[c] = xi_s if xi_s >= v else v
+                v = factor * s_in
+                a_p[c] = xi_p if xi_p >= v else v
+            else:
+                a_s[c] = xi_s
+                a_p[c] = xi_p
+            if second:
+                v = factor2 * s_adj
+                b_s[c] = xi_s if xi_s >= v else v
+                v = factor2 * s_in
+                b_p[c] = xi_p if xi_p >= v else v
+    return out_s, out_p, out_s2, out_p2
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _support_met(ranges, r, c, xi_s, xi_p, half_in, need_in, need_adj, wrap, uniform, reach):
     """Whether return ``(r, c)`` meets the in-slice and the adjacent-slice condition of eq. (4)
@@ -637,6 +680,74 @@ def fill_holes(labels, holes, wrap):
 
 
 @njit(cache=True, nogil=True)
+def fill_holes_sized(labels, holes, wrap, n):
+    """:func:`fill_holes` (same result) and the size of every label ``0..n`` after filling, in
+    one pass; neighbourhoods are read with bounds checks for the hole pixels only (no padded
+    copy).
+
+    Returns
+    -------
+    out : int32 (rows, cols)
+    size : int64 (n + 1,)
+    """
+    R, C = labels.shape
+    out = np.empty((R, C), np.int32)
+    size = np.zeros(n + 1, np.int64)
+    v = np.zeros(8, np.int32)
+    for r in range(R):
+        for c in range(C):
+            if not holes[r, c]:
+                x = labels[r, c]
+                out[r, c] = x
+                size[x] += 1
+                continue
+            cm = c - 1
+            cp = c + 1
+            if wrap:
+                if cm < 0:
+                    cm += C
+                if cp >= C:
+                    cp -= C
+            a = 0
+            for dr in range(-1, 2):
+                rr = r + dr
+                for dc in range(-1, 2):
+                    if dr == 0 and dc == 0:
+                        continue
+                    cc = cm if dc < 0 else (cp if dc > 0 else c)
+                    if rr < 0 or rr >= R or cc < 0 or cc >= C:
+                        v[a] = 0
+                    else:
+                        v[a] = labels[rr, cc]
+                    a += 1
+            first = 0
+            mixed = False
+            for a in range(8):
+                if v[a] != 0:
+                    if first == 0:
+                        first = v[a]
+                    elif v[a] != first:
+                        mixed = True
+            best = first
+            if mixed:
+                best = 0
+                best_n = 0
+                for a in range(8):
+                    va = v[a]
+                    if va == 0:
+                        continue
+                    k = 0
+                    for b in range(8):
+                        k += v[b] == va
+                    if k > best_n or (k == best_n and va < best):
+                        best = va
+                        best_n = k
+            out[r, c] = best
+            size[best] += 1
+    return out, size
+
+
+@njit(cache=True, nogil=True)
 def dilate4(mask, iterations, wrap):
     """Binary dilation with the 4-neighbourhood, ``iterations`` times (Section II-E)."""
     R, C = mask.shape
@@ -698,6 +809,62 @@ def combine(h_local, glob, smooth, small, dilated, v_local, v_offset, supported)
             else:
                 seg[r, c] = glob[s]
     return seg, nonsmooth
+
+
+@njit(cache=True, nogil=True)
+def combine_codes(
+    ranges,
+    h_local,
+    glob,
+    smooth,
+    small,
+    dilated,
+    v_local,
+    v_offset,
+    supported,
+    ground,
+    smooth_code,
+    ground_code,
+    nonsmooth_code,
+    noise_code,
+    unclassified_code,
+):
+    """:func:`combine` and :func:`class_codes` in one pass (the same three arrays).
+
+    Returns
+    -------
+    segments : int32 (rows, cols)
+    nonsmooth : bool (rows, cols)
+    codes : uint8 (rows, cols)
+    """
+    R, C = h_local.shape
+    seg = np.zeros((R, C), np.int32)
+    nonsmooth = np.zeros((R, C), np.bool_)
+    out = np.zeros((R, C), np.uint8)
+    for r in range(R):
+        for c in range(C):
+            no_return = ranges[r, c] <= 0.0
+            if not supported[r, c]:
+                if not no_return:
+                    out[r, c] = noise_code
+                continue
+            s = h_local[r, c]
+            if small[r, c] or (s == 0 and dilated[r, c]):
+                nonsmooth[r, c] = True
+                v = v_local[r, c]
+                seg[r, c] = v + v_offset if v > 0 else 0
+                if not no_return:
+                    out[r, c] = nonsmooth_code
+            else:
+                g = glob[s]
+                seg[r, c] = g
+                if no_return:
+                    continue
+                if smooth[r, c]:
+                    out[r, c] = ground_code if (ground != 0 and g == ground) else smooth_code
+                else:
+                    out[r, c] = unclassified_code
+    return seg, nonsmooth, out
 
 
 @njit(cache=True, nogil=True)
