@@ -169,3 +169,28 @@ def test_simulated_frame(tmp_path):
     assert (res.codes[gt == L.BUILDING] == L.VERTICAL).mean() > 0.75
     assert (res.codes[gt == L.TRUNK] == L.VERTICAL).mean() > 0.8
     assert (res.codes[gt == L.VEGETATION] == L.VEGETATION).mean() > (res.codes[gt == L.BUILDING] == L.VEGETATION).mean()
+
+
+def line_returns_of(res, scan: Scan):
+    """Check ``res.returns`` against its definition: each line's returns in order with their
+    per-slot codes, line angles and heights."""
+    z, valid = scan.slot_xyz64()[:, 2], scan.valid.ravel()
+    codes, phi = res.codes.ravel(), res.phi_hat.ravel()
+    for li, line in enumerate(res.lines):
+        slots = np.array([s for s in line if s >= 0 and valid[s]], np.int64)
+        m = res.returns.count[li]
+        assert m == len(slots)
+        np.testing.assert_array_equal(res.returns.pts[li, :m], slots)
+        np.testing.assert_array_equal(res.returns.codes[li, :m], codes[slots])
+        np.testing.assert_array_equal(res.returns.phi[li, :m], phi[slots].astype(np.float64))
+        np.testing.assert_array_equal(res.returns.z[li, :m], z[slots])
+
+
+@pytest.mark.parametrize("sensor", ["vlp16", "profiler-urban"])
+def test_line_returns_are_the_lines_returns_with_their_slot_classes(sensor):
+    """The rows the later stages read (a profiler's up lines share their first slot with a down
+    line, whose classes it takes)."""
+    sim = Simulator(SimConfig(frames=1, seed=2, sensor=sensor))
+    scan = Scan(sim.frame(0).ranges, sim.sensor.model)
+    scan.ranges[:, ::7] = 0.0  # slots without a return inside the lines
+    line_returns_of(coarse_classify(scan), scan)

@@ -247,32 +247,23 @@ def test_lowest_mean_is_the_sorted_definition(z, k):
 
 @SETTINGS
 @given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 70))
-def test_gathered_lines_and_their_first_runs(seed, n_lines, width):
-    """The threaded pre-pass of the ground algorithm: each line's returns in order (padding and
-    invalid slots skipped) and its first potential-ground run, as :func:`_potential_ground`
-    finds it on those returns."""
-    from prc_slam.online.ground import LineReturns, _potential_ground
+def test_first_runs_are_part_a_from_each_line_start(seed, n_lines, width):
+    """The threaded pre-pass of the ground algorithm: each line's first potential-ground run, as
+    :func:`_potential_ground` finds it on the line's returns (rows of any width, ``count`` used)."""
+    from prc_slam.online.coarse import LineReturns
+    from prc_slam.online.ground import _potential_ground, all_first_runs
 
     rng = np.random.default_rng(seed)
-    n_slots = n_lines * width
-    codes = rng.choice(np.array([68, 68, 68, 69, 5], np.uint8), n_slots)
-    phi = rng.normal(0.0, rng.choice([2.0, 8.0]), n_slots).astype(np.float32)
-    valid = rng.random(n_slots) > 0.1
-    xyz = rng.normal(size=(n_slots, 3))
-    lines = rng.permutation(n_slots).reshape(n_lines, width).astype(np.int64)
-    lines[:, width - rng.integers(0, width // 4 + 1) :] = -1  # padded ends
-    got = LineReturns.gather(codes, phi, valid, xyz, lines, 10, 10.0)
+    returns = LineReturns.empty(n_lines, width)
+    returns.codes[:] = rng.choice(np.array([68, 68, 68, 69, 5], np.uint8), (n_lines, width))
+    returns.phi[:] = rng.normal(0.0, rng.choice([2.0, 8.0]), (n_lines, width))
+    returns.count[:] = rng.integers(0, width + 1, n_lines)
+    run_a, run_b = all_first_runs(returns, 10, 10.0)
     scratch = (np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1))
-    for li, line in enumerate(lines):
-        slots = np.array([s for s in line if s >= 0 and valid[s]], np.int64)  # the line's returns in order
-        m = got.count[li]
-        assert m == len(slots)
-        np.testing.assert_array_equal(got.pts[li, :m], slots)
-        np.testing.assert_array_equal(got.codes[li, :m], codes[slots])
-        np.testing.assert_array_equal(got.phi[li, :m], phi[slots].astype(np.float64))
-        np.testing.assert_array_equal(got.z[li, :m], xyz[slots, 2])
-        c, p = codes[slots], phi[slots].astype(np.float64)
-        assert (got.run_a[li], got.run_b[li]) == _potential_ground(c, p, 0, 10, 10.0, *scratch)
+    for li in range(n_lines):
+        m = returns.count[li]
+        codes, phi = returns.codes[li, :m], returns.phi[li, :m]
+        assert (run_a[li], run_b[li]) == _potential_ground(codes, phi, 0, 10, 10.0, *scratch)
 
 
 @SETTINGS

@@ -125,22 +125,25 @@ def shared_first(scan: Scan) -> int:
 
 @njit(cache=True, nogil=True)
 def _classify_lines(
-    codes, t_prime, sv_out, phi_out, lo, hi,
+    codes, t_prime, sv_out, phi_out, ret_pts, ret_codes, ret_phi, ret_z, ret_count, lo, hi,
     xyz, valid, lines, vm, vs, va0, va1, vh, hs, hh, tm, ts, ta0, ta1, th, min_step, centred, shared, with_tp,
 ):  # fmt: skip
-    """The coarse classes of lines ``lo..hi - 1`` written into ``codes, t_prime, sv_out, phi_out``.
+    """The coarse classes of lines ``lo..hi - 1`` written into ``codes, t_prime, sv_out, phi_out``
+    (per slot) and each line's returns into the rows of ``ret_*`` (:class:`LineReturns`).
 
     Per-line arrays live in buffers made once per call, not once per line."""
     origin = np.zeros(3)
     width = lines.shape[1]
-    pts_b, sv_b, phi_b = np.empty(width, np.int64), np.empty(width), np.empty(width)
+    sv_b, phi_b = np.empty(width), np.empty(width)
     veg_b, tp_b, vert_b = np.empty(width, np.bool_), np.empty(width, np.bool_), np.empty(width, np.bool_)
     sd_b, rest_b = np.empty(width), np.empty(width)
     for li in range(lo, hi):  # scan lines are independent; each writes only its slots
-        n = K.line_statistics_into(xyz, valid, lines[li], origin, min_step, centred, pts_b, sv_b, phi_b)
+        pts = ret_pts[li]
+        n = K.line_statistics_into(xyz, valid, lines[li], origin, min_step, centred, pts, sv_b, phi_b)
+        ret_count[li] = n
         if n == 0:
             continue
-        pts, sv, phi = pts_b[:n], sv_b[:n], phi_b[:n]
+        sv, phi = sv_b[:n], phi_b[:n]
         veg = veg_b[:n]
         if vm.shape[0] == 3:
             K.hmm_cusum3_into(sv, vm, vs, va0, va1, vh, veg)
@@ -166,33 +169,72 @@ def _classify_lines(
         j = 0
         for k in range(n):
             s = pts[k]
+            code = 5
+            if not veg[k]:
+                code = 69 if vertical[j] else 68
+                j += 1
+            ret_codes[li, k] = code
+            ret_phi[li, k] = np.float64(np.float32(phi[k]))  # as stored per slot
+            ret_z[li, k] = xyz[s, 2]
             if k == 0 and li < shared and s == lines[li, 0]:  # the down line writes it
-                if not veg[k]:
-                    j += 1
                 continue
             sv_out[s] = sv[k]
             phi_out[s] = phi[k]
             if with_tp:
                 t_prime[s] = tp[k]
-            if veg[k]:
-                codes[s] = 5
-            else:
-                codes[s] = 69 if vertical[j] else 68
-                j += 1
+            codes[s] = code
+
+
+@dataclass
+class LineReturns:
+    """Every scan line's returns in contiguous rows, in line order: slots ``pts``, coarse
+    ``codes``, line angles ``phi`` (the per-slot float32 values), heights ``z``; ``count`` per
+    line (the rest of a row is unused). The later stages read a line's returns from here."""
+
+    pts: np.ndarray  # int64 (lines, width)
+    codes: np.ndarray  # uint8 (lines, width)
+    phi: np.ndarray  # float64 (lines, width)
+    z: np.ndarray  # float64 (lines, width)
+    count: np.ndarray  # int64 (lines,)
+
+    @classmethod
+    def empty(cls, n_lines: int, width: int) -> LineReturns:
+        return cls(
+            np.empty((n_lines, width), np.int64), np.empty((n_lines, width), np.uint8),
+            np.empty((n_lines, width)), np.empty((n_lines, width)), np.empty(n_lines, np.int64),
+        )  # fmt: skip
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        return self.pts, self.codes, self.phi, self.z, self.count
+
+    def subset(self, lines: np.ndarray) -> LineReturns:
+        """The rows of ``lines`` (a mask or indices)."""
+        return LineReturns(*(a[lines] for a in self.arrays()))
 
 
 @dataclass
 class CoarseResult:
     """Per-slot results: ``codes`` (68 horizontal, 69 vertical, 5 vegetation, 0 no return),
     ``t_prime`` (less sensitive vegetation, Sec. 7.1; None when not asked for: only the per-column
-    car algorithm of Sec. 7 uses it), signed angles ``sv`` and line angles ``phi_hat``; and the
-    scan lines they were computed on (:func:`scan_lines`), which the later stages use."""
+    car algorithm of Sec. 7 uses it), signed angles ``sv`` and line angles ``phi_hat``; the
+    scan lines they were computed on (:func:`scan_lines`), which the later stages use, and
+    each line's ``returns`` (:class:`LineReturns`)."""
 
     codes: np.ndarray
     t_prime: np.ndarray | None
     sv: np.ndarray
     phi_hat: np.ndarray
     lines: np.ndarray
+    returns: LineReturns
+
+
+def _shared_returns(returns: LineReturns, lines: np.ndarray, shared: int, codes: np.ndarray, phi: np.ndarray) -> None:
+    """The first return of each of the ``shared`` leading lines takes the classes its slot got
+    from the later line that writes it (:func:`shared_first`), as every stage reads them per slot."""
+    first = returns.pts[:shared, 0]
+    own = np.flatnonzero((returns.count[:shared] > 0) & (first == lines[:shared, 0]))
+    returns.codes[own, 0] = codes[first[own]]
+    returns.phi[own, 0] = phi[first[own]]
 
 
 def coarse_classify(scan: Scan, params: CoarseParams | None = None, t_prime: bool = True) -> CoarseResult:
@@ -216,8 +258,11 @@ def coarse_classify(scan: Scan, params: CoarseParams | None = None, t_prime: boo
         np.array(p.tp_means, float), p.tp_sigma, p.tp_regular, p.tp_fast, p.tp_h,
         p.min_step, p.centred, shared_first(scan), t_prime,
     )  # fmt: skip
-    in_threads(lambda lo, hi: _classify_lines(codes, tp, sv, phi, lo, hi, *args), len(lines))
+    returns = LineReturns.empty(*lines.shape)
+    out = (codes, tp, sv, phi, *returns.arrays())
+    in_threads(lambda lo, hi: _classify_lines(*out, lo, hi, *args), len(lines))
+    _shared_returns(returns, lines, shared_first(scan), codes, phi)
     shape = scan.shape
     assert L.VEGETATION == 5 and L.HORIZONTAL == 68 and L.VERTICAL == 69  # codes used by the kernel
     tp = tp.reshape(shape) if t_prime else None
-    return CoarseResult(codes.reshape(shape), tp, sv.reshape(shape), phi.reshape(shape), lines)
+    return CoarseResult(codes.reshape(shape), tp, sv.reshape(shape), phi.reshape(shape), lines, returns)

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from prc_slam import labels as L
-from prc_slam.online.coarse import CoarseResult
+from prc_slam.online.coarse import CoarseResult, LineReturns
 from prc_slam.scan import Scan
 from prc_slam.threads import in_threads
 
@@ -237,82 +237,29 @@ def _lowest_mean(z, k):
 
 
 @njit(cache=True, nogil=True)
-def gather_lines(
-    slot_codes, slot_phi, valid, xyz, lines, lo, hi, run_len, phi_bw, pts, codes, phi, zs, count, run_a, run_b
-):
-    """Lines ``lo..hi - 1``: their returns into contiguous rows (slot, code, line angle, height,
-    in line order; ``count`` per line) and part (a) from each line's start, the first
-    potential-ground run ``(run_a, run_b)`` in the line's returns (-1, -1: none).
+def first_runs(codes, phi, count, lo, hi, run_len, phi_bw, run_a, run_b):
+    """Part (a) from the start of lines ``lo..hi - 1`` (their returns in the rows of ``codes,
+    phi``, ``count`` each): the first potential-ground run ``(run_a, run_b)`` of each line
+    (-1, -1: none).
 
-    Neither depends on ``z_d``: this bulk of the ground algorithm's work is done for all lines
-    independently (in threads, :meth:`LineReturns.gather`), and the sequential pass of part (b),
-    :func:`ground_lines`, then reads each line's returns from memory in order."""
-    width = lines.shape[1]
+    It does not depend on ``z_d``: this bulk of the ground algorithm's work is done for all lines
+    independently (in threads, :func:`all_first_runs`) before the sequential pass of part (b),
+    :func:`ground_lines`."""
+    width = codes.shape[1]
     srt, rank, cnt, tot = np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1)
     for li in range(lo, hi):
-        line = lines[li]
-        m = 0
-        for j in range(width):
-            s = line[j]
-            if s < 0:
-                break
-            if valid[s]:
-                pts[li, m] = s
-                codes[li, m] = slot_codes[s]
-                phi[li, m] = np.float64(slot_phi[s])
-                zs[li, m] = xyz[s, 2]
-                m += 1
-        count[li] = m
-        a, b = _potential_ground(codes[li, :m], phi[li, :m], 0, run_len, phi_bw, srt, rank, cnt, tot)
-        run_a[li] = a
-        run_b[li] = b
+        m = count[li]
+        run_a[li], run_b[li] = _potential_ground(codes[li, :m], phi[li, :m], 0, run_len, phi_bw, srt, rank, cnt, tot)
 
 
-@dataclass
-class LineReturns:
-    """Every scan line's returns in contiguous rows (:func:`gather_lines`): slots ``pts``,
-    coarse ``codes``, line angles ``phi``, heights ``z`` (``count`` per line, the rest of a row
-    unused), and each line's first potential-ground run ``run_a..run_b`` (-1: none)."""
-
-    pts: np.ndarray  # int64 (lines, width)
-    codes: np.ndarray  # uint8 (lines, width)
-    phi: np.ndarray  # float64 (lines, width)
-    z: np.ndarray  # float64 (lines, width)
-    count: np.ndarray  # int64 (lines,)
-    run_a: np.ndarray  # int64 (lines,)
-    run_b: np.ndarray  # int64 (lines,)
-
-    @classmethod
-    def gather(
-        cls,
-        slot_codes: np.ndarray,
-        slot_phi: np.ndarray,
-        valid: np.ndarray,
-        xyz: np.ndarray,
-        lines: np.ndarray,
-        run_len: int,
-        phi_bw: float,
-    ) -> LineReturns:
-        """:func:`gather_lines` over every line, the lines split between the numba threads."""
-        n, width = lines.shape
-        out = cls(
-            np.empty((n, width), np.int64), np.empty((n, width), slot_codes.dtype), np.empty((n, width)),
-            np.empty((n, width)), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
-        )  # fmt: skip
-        in_threads(
-            lambda lo, hi: gather_lines(
-                slot_codes, slot_phi, valid, xyz, lines, lo, hi, run_len, phi_bw, *out.arrays()
-            ),
-            n,
-        )
-        return out
-
-    def arrays(self) -> tuple[np.ndarray, ...]:
-        return self.pts, self.codes, self.phi, self.z, self.count, self.run_a, self.run_b
-
-    def subset(self, lines: np.ndarray) -> LineReturns:
-        """The rows of ``lines`` (a mask or indices)."""
-        return LineReturns(*(a[lines] for a in self.arrays()))
+def all_first_runs(returns: LineReturns, run_len: int, phi_bw: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`first_runs` of every line of ``returns``, the lines split between the numba threads."""
+    n = returns.count.shape[0]
+    run_a, run_b = np.empty(n, np.int64), np.empty(n, np.int64)
+    in_threads(
+        lambda lo, hi: first_runs(returns.codes, returns.phi, returns.count, lo, hi, run_len, phi_bw, run_a, run_b), n
+    )
+    return run_a, run_b
 
 
 @njit(cache=True, nogil=True)
@@ -336,8 +283,8 @@ def ground_lines(
     grow_tol,
     n_init,
 ):
-    """Parts (a) and (b) over all lines of a frame (their returns and first potential-ground
-    runs from :func:`gather_lines`), continuing the state ``(z_hist, n_hist, zd, have_zd)``.
+    """Parts (a) and (b) over all lines of a frame (their returns, :class:`LineReturns`, and
+    first potential-ground runs, :func:`first_runs`), continuing the state ``(z_hist, n_hist, zd, have_zd)``.
     Returns the ground mask of the ``n_slots`` slots, the per-line ground height and the state."""
     n_lines = count.shape[0]
     ground = np.zeros(n_slots, np.bool_)
@@ -416,11 +363,14 @@ class GroundDetector:
         """The dominant ground height ``z_d`` (sensor frame), once known."""
         return self.zd if self.have_zd else None
 
-    def _run(self, n_slots: int, returns: LineReturns) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:func:`ground_lines` on the lines of ``returns`` from the current state; updates the state."""
+    def _run(
+        self, n_slots: int, returns: LineReturns, runs: tuple[np.ndarray, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`ground_lines` on the lines of ``returns`` (first runs ``runs``) from the current
+        state; updates the state."""
         p = self.params
         ground, heights, pending, self.z_hist, self.n_hist, self.zd, self.have_zd = ground_lines(
-            n_slots, *returns.arrays(), self.z_hist, self.n_hist, self.zd, self.have_zd,
+            n_slots, *returns.arrays(), *runs, self.z_hist, self.n_hist, self.zd, self.have_zd,
             p.run_len, p.phi_bandwidth, p.z_bandwidth, p.rel_tolerance, p.grow_tolerance, p.n_init,
         )  # fmt: skip
         return ground, heights, pending
@@ -429,15 +379,13 @@ class GroundDetector:
         """Ground mask (rows, cols) of one scan, given its coarse classification. Afterwards
         :attr:`line_heights` holds the ground height of each of the scan's lines."""
         p = self.params
-        valid = scan.valid.ravel()
-        returns = LineReturns.gather(
-            coarse.codes.ravel(), coarse.phi_hat.ravel(), valid, scan.slot_xyz64(), coarse.lines,
-            p.run_len, p.phi_bandwidth,
-        )  # fmt: skip
+        n_slots = scan.valid.size
+        returns = coarse.returns
+        run_a, run_b = all_first_runs(returns, p.run_len, p.phi_bandwidth)
         had = self.have_zd
-        ground, heights, pending = self._run(len(valid), returns)
+        ground, heights, pending = self._run(n_slots, returns, (run_a, run_b))
         if self.have_zd and not had and pending.any():  # start again from the first scan line
-            again, heights[pending], _ = self._run(len(valid), returns.subset(pending))
+            again, heights[pending], _ = self._run(n_slots, returns.subset(pending), (run_a[pending], run_b[pending]))
             ground |= again
         self.line_heights = np.where(np.isnan(heights), self.zd, heights) if self.have_zd else None
         assert L.HORIZONTAL == 68  # code tested by the kernel

@@ -105,11 +105,20 @@ def line_statistics_into(xyz, valid, line, origin, min_step, centred, pts, sv, p
     length: no allocation, for callers that reuse one set of buffers for many lines);
     returns the number of returns ``n`` (the results are the first ``n`` entries)."""
     n = line_returns_into(line, valid, pts)
+    statistics_of_returns(xyz, pts, n, origin, min_step, centred, sv, phi_hat)
+    return n
+
+
+@njit(cache=True, nogil=True)
+def statistics_of_returns(xyz, pts, n, origin, min_step, centred, sv, phi_hat):
+    """:func:`line_statistics` of the returns ``xyz[pts[0]], ..., xyz[pts[n - 1]]`` (a line's
+    returns in order), written into ``sv[:n], phi_hat[:n]``. Callers that hold the returns'
+    coordinates in order pass them as ``xyz`` with ``pts = 0, 1, ...``."""
     if n < 2:
         for k in range(n):
             sv[k] = 0.0
             phi_hat[k] = 0.0
-        return n
+        return
     p0 = p1 = p2 = 0.0  # D_{k-1}
     b0 = b1 = b2 = 0.0  # X_{k+1} - X_A
     cum = 0.0
@@ -147,7 +156,6 @@ def line_statistics_into(xyz, valid, line, origin, min_step, centred, pts, sv, p
         p0, p1, p2 = d0, d1, d2
     sv[n - 1] = sv[n - 2]
     phi_hat[n - 1] = phi_hat[n - 2]
-    return n
 
 
 @njit(cache=True, nogil=True)
