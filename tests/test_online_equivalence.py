@@ -51,6 +51,33 @@ def test_evenly_spaced_three_state_hmm_cusum_is_the_general_one(seed, n):
         np.testing.assert_array_equal(K._hmm_cusum3(x, means, sigma, a0, a1, h), general)
 
 
+def track_mode_reference(z, start, bandwidth):
+    m = start
+    for _ in range(100):
+        window = z[np.abs(z - m) <= bandwidth]
+        if len(window) == 0:
+            return m
+        new = window.mean()
+        if abs(new - m) < 1e-3 * bandwidth:
+            return new
+        m = new
+    return m
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(1, 600))
+def test_track_mode_is_mean_shift_from_its_start(seed, n):
+    """The ground's z_d update (interleaved partial sums): the mode mean shift climbs to from
+    ``start``, as a plain mean of each window gives it (to rounding)."""
+    from prc_slam.online.ground import _track_mode
+
+    rng = np.random.default_rng(seed)
+    z = np.concatenate([rng.normal(-1.7, 0.05, n), rng.normal(-0.2, 0.3, n // 3)])
+    start = float(rng.choice(z))
+    assert abs(_track_mode(z, len(z), start, 0.2) - track_mode_reference(z, start, 0.2)) < 1e-9
+    assert _track_mode(z, 0, start, 0.2) == start  # no samples: stays
+
+
 def line_statistics_reference(xyz, valid, line, origin, min_step=0.0, centred=False):
     """The definition of :func:`K.line_statistics`, one angle at a time with ``_angle_deg``."""
     pts = np.array([s for s in line if s >= 0 and valid[s]], np.int64)
