@@ -11,7 +11,7 @@ from prc_slam.online import kernels as K
 from prc_slam.online.car import oriented_box, oriented_boxes_of
 from prc_slam.online.curb import group_medians, possible_curbs, region_stats
 from prc_slam.online.ground import _lowest_mean
-from prc_slam.online.spinning import _heights, segment_tops
+from prc_slam.online.spinning import _heights, graph_components, segment_tops
 
 SETTINGS = settings(max_examples=60, deadline=None)
 
@@ -317,3 +317,17 @@ def test_kernels_into_dirty_buffers_are_the_allocating_ones(seed, n):
     out[:] = True
     K.mean_shift_cusum_into(x, 90.0, 0.0, 25.0, 5.0, out)
     np.testing.assert_array_equal(out[:n], K.mean_shift_cusum(x, 90.0, 0.0, 25.0, 5.0))
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(1, 60), st.integers(0, 80))
+def test_graph_components_number_as_scipy_does(seed, n, m):
+    """The car path's grouping of grazing-linked segments: the components and their numbering of
+    ``scipy.sparse.csgraph.connected_components`` (which it replaced)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(seed)
+    a, b = rng.integers(0, n, m), rng.integers(0, n, m)
+    _, expected = connected_components(coo_matrix((np.ones(m), (a, b)), shape=(n, n)), directed=False)
+    np.testing.assert_array_equal(graph_components(n, a, b), expected)

@@ -231,6 +231,8 @@ class CoarseResult:
 def _shared_returns(returns: LineReturns, lines: np.ndarray, shared: int, codes: np.ndarray, phi: np.ndarray) -> None:
     """The first return of each of the ``shared`` leading lines takes the classes its slot got
     from the later line that writes it (:func:`shared_first`), as every stage reads them per slot."""
+    if shared == 0:
+        return
     first = returns.pts[:shared, 0]
     own = np.flatnonzero((returns.count[:shared] > 0) & (first == lines[:shared, 0]))
     returns.codes[own, 0] = codes[first[own]]

@@ -145,6 +145,26 @@ def _union(parent, a, b):
 
 
 @njit(cache=True, nogil=True)
+def graph_components(n_nodes, a, b):
+    """Connected components of the undirected graph on nodes ``0..n_nodes - 1`` with edges
+    ``a[i] - b[i]``: a label per node, numbered 0, 1, ... in the order of each component's lowest
+    node (as ``scipy.sparse.csgraph.connected_components`` numbers them)."""
+    parent = np.arange(n_nodes)
+    for i in range(a.shape[0]):
+        _union(parent, a[i], b[i])
+    label = np.full(n_nodes, -1, np.int64)
+    comp = np.empty(n_nodes, np.int64)
+    k = 0
+    for v in range(n_nodes):
+        root = _find(parent, v)
+        if label[root] < 0:
+            label[root] = k
+            k += 1
+        comp[v] = label[root]
+    return comp
+
+
+@njit(cache=True, nogil=True)
 def _d2(xyz, r0, c0, r1, c1):
     dx = xyz[r0, c0, 0] - xyz[r1, c1, 0]
     dy = xyz[r0, c0, 1] - xyz[r1, c1, 1]
@@ -682,12 +702,7 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
     keep &= ~np.isin(b, a[keep])  # no chains: a face's roof is no other roof's face
     if not keep.any():
         return remap[seg_o], 0
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    a, b = a[keep], b[keep]
-    graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(n + 1, n + 1))
-    _, comp = connected_components(graph, directed=False)
+    comp = graph_components(n + 1, a[keep], b[keep])
     size = np.bincount(comp, minlength=n + 1)
     # groups of two or more parts, numbered 1..g; lone segments keep their verdict
     multi = size[comp] > 1
