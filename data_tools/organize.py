@@ -160,7 +160,7 @@ def _atan2(y, x):
     return r
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _polar(xyz, offset, ok, rng, az, te, cloud, small=0.7853981633974483):
     """Per point: has a return, range, azimuth (rad, (-pi, pi]) and the tangent of the beam
     elevation ``z / (rho - offset)``, ``offset`` being the horizontal distance of the beam
@@ -171,37 +171,47 @@ def _polar(xyz, offset, ok, rng, az, te, cloud, small=0.7853981633974483):
     (work arrays reused from sweep to sweep: fresh ones cost page faults) and copies the
     points into ``cloud`` (float32, no-return rows zeroed)."""
     n = xyz.shape[0]
-    prev = 0.0
-    have = False
-    steps = 0
-    n_small = 0
-    total = 0.0
+    a64 = np.empty(n)  # the azimuths in double precision, for the order statistics
+    # per point, without branches (the loop vectorises; values as _atan2 and the guards give)
     for i in range(n):
         x = float(xyz[i, 0])
         y = float(xyz[i, 1])
         z = float(xyz[i, 2])
         rho2 = x * x + y * y
         r2 = rho2 + z * z
-        good = math.isfinite(r2) and r2 > 0.0
+        good = math.isfinite(r2) & (r2 > 0.0)
         ok[i] = good
-        if good:
-            cloud[i, 0] = x
-            cloud[i, 1] = y
-            cloud[i, 2] = z
-        else:
-            cloud[i, 0] = 0.0
-            cloud[i, 1] = 0.0
-            cloud[i, 2] = 0.0
-            rng[i] = 0.0
-            az[i] = 0.0
-            te[i] = 0.0
+        cloud[i, 0] = x if good else 0.0
+        cloud[i, 1] = y if good else 0.0
+        cloud[i, 2] = z if good else 0.0
+        rng[i] = math.sqrt(r2) if good else 0.0
+        ax = abs(x)
+        ay = abs(y)
+        mx = max(ax, ay)
+        q = min(ax, ay) / mx
+        q2 = q * q
+        a = (
+            ((((-0.0117212 * q2 + 0.05265332) * q2 - 0.11643287) * q2 + 0.19354346) * q2 - 0.33262347) * q2 + 0.99997726
+        ) * q
+        a = 1.5707963267948966 - a if ay > ax else a
+        a = 3.141592653589793 - a if x < 0.0 else a
+        a = -a if y < 0.0 else a
+        a = a if mx != 0.0 else 0.0
+        a64[i] = a
+        az[i] = a if good else 0.0
+        h = math.sqrt(rho2) - offset
+        t = z / h if h > 1e-6 else (1e6 if z > 0 else -1e6)
+        te[i] = t if good else 0.0
+    # along the input order: steps between consecutive returns
+    prev = 0.0
+    have = False
+    steps = 0
+    n_small = 0
+    total = 0.0
+    for i in range(n):
+        if not ok[i]:
             continue
-        rho = math.sqrt(rho2)
-        rng[i] = math.sqrt(r2)
-        a = _atan2(y, x)
-        az[i] = a
-        h = rho - offset
-        te[i] = z / h if h > 1e-6 else (1e6 if z > 0 else -1e6)
+        a = a64[i]
         if have:
             d = a - prev
             if d > np.pi:

@@ -201,3 +201,32 @@ def test_fused_kernels_equal_the_step_kernels(seed):
     )
     assert np.array_equal(a.ground, b.ground) and np.array_equal(a.seed, b.seed) and a.counts == b.counts
     assert np.array_equal(a.plane, b.plane) and a.z_ref == b.z_ref
+
+
+def test_threaded_block_equals_serial():
+    """Support rows in row chunks and the column ground's first steps beside the segmentation
+    (numba threads >= 2) give the serial result, bit for bit."""
+    numba = pytest.importorskip("numba")
+    from prc_slam.prc.algorithm import THREADED_SLOTS
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba may use one thread only (NUMBA_NUM_THREADS): no threaded run to compare")
+    rng = np.random.default_rng(3)
+    r, sensor, _ = _plane_sweep(2.0, rows=64, cols=512)
+    assert r.size >= THREADED_SLOTS
+    wall = (np.arange(512) % 128) < 40
+    r[:40, wall] = np.minimum(r[:40, wall], 9.0) + rng.normal(0, 0.02, (40, int(wall.sum()))).astype(np.float32)
+    r[rng.random(r.shape) < 0.03] = rng.uniform(1, 60, int((rng.random(r.shape) < 0.03).sum()))[0]
+    cfg = PRCConfig.preset("multibeam")
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        a = prc_block(r, cfg, sensor=sensor, wrap=True, ground_state=G.GroundState())
+        numba.set_num_threads(2)
+        b = prc_block(r, cfg, sensor=sensor, wrap=True, ground_state=G.GroundState())
+    finally:
+        numba.set_num_threads(before)
+    for k in ("labels", "segments", "supported", "smooth", "one_sided"):
+        assert np.array_equal(getattr(a, k), getattr(b, k)), k
+    assert a.ground is not None and np.array_equal(a.ground.ground, b.ground.ground)
+    assert (a.labels == L.GROUND).any() and (a.labels == L.BUILDING).any()

@@ -22,15 +22,28 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from prc_slam import labels as L
 from prc_slam.prc import kernels
 from prc_slam.prc.config import PRCConfig
-from prc_slam.prc.ground import GroundModelError, GroundResult, GroundState, column_ground
+from prc_slam.prc.ground import (
+    GroundModelError,
+    GroundResult,
+    GroundState,
+    ground_frame,
+    ground_from_frame,
+    seed_in_frame,
+)
 from prc_slam.scan import Scan, SensorModel, SpinningSensor
+from prc_slam.threads import in_threads, side_by_side
 
 log = logging.getLogger("prc_slam.prc")
+
+#: blocks of at least this many slots run their support rows and the column ground's first steps
+#: on the numba threads (``NUMBA_NUM_THREADS``; 1: all serial), beside one another
+THREADED_SLOTS = 20000
 
 #: |N_adj-slice| of eq. (7): three slots in the previous and three in the next scan line.
 N_ADJ = 6
@@ -160,10 +173,7 @@ def support_and_background(
     need_in, need_adj = support_counts_needed(config)
     second = config.one_sided_incidence_deg is not None
     xi_s, xi_p, xi_s2, xi_p2 = _all_thresholds(ranges, config, sensor, second)
-    return kernels.support_and_gradient(
-        ranges,
-        xi_s,
-        xi_p,
+    args = (
         config.in_slice_half,
         need_in,
         need_adj,
@@ -178,6 +188,22 @@ def support_and_background(
         xi_p2,
         second,
     )
+    rows, cols = ranges.shape
+    if (
+        numba.get_num_threads() < 2
+        or rows * cols < THREADED_SLOTS
+        or cols <= 2 * max(config.in_slice_reach, config.in_slice_half) + 1
+    ):
+        return kernels.support_and_gradient(ranges, xi_s, xi_p, *args)
+    # row chunks on the numba threads (plain threads over the serial kernel; same result)
+    pr, pt = kernels._padded(ranges, xi_s, wrap)
+    out = tuple(np.zeros(ranges.shape, np.bool_) for _ in range(3))
+
+    def work(lo: int, hi: int) -> None:
+        kernels.support_rows(ranges, pr, pt, xi_s, xi_p, *args, *out, lo, hi)
+
+    in_threads(work, rows, min_chunk=8)
+    return out
 
 
 def supported_mask(
@@ -252,12 +278,96 @@ def prc_block(
         Carried between the sweeps of one recording by the column ground (temporal step).
     """
     ranges = np.ascontiguousarray(ranges, dtype=np.float32)
-    cols = ranges.shape[1]
     carry = state is not None
     state = state if state is not None else PRCState()
     # Step 2: support, eqs. (4)-(8); step 3b: background extension, eq. (9).
     supported, grad, one_sided = support_and_background(ranges, config, sensor, wrap)
 
+    # Step 6 for spinning sensors: the column ground's first steps need no segments; on large
+    # blocks they run beside steps 3-4 (on another numba thread)
+    urban = config.mode == "urban"
+    columns = urban and _column_ground_applies(config, sensor)
+
+    def segmentation() -> tuple:
+        return _segment(ranges, supported, grad, config, wrap, state, carry)
+
+    head: object = None
+    if columns:
+        assert sensor is not None  # checked by _column_ground_applies
+        # ground is a class of the returns that are not isolated: supported or one-sided
+        valid = supported | one_sided
+        xyz, rays_ranges = _rays_and_ranges(sensor, ranges)
+        altitude = getattr(sensor, "altitude", None)
+
+        def ground_head() -> object:
+            try:
+                frame = ground_frame(xyz, valid, altitude=altitude, state=ground_state, ranges=rays_ranges)
+            except GroundModelError as exc:
+                return exc
+            return frame, seed_in_frame(xyz, valid, config, frame[0], frame[2], frame[3], ranges=rays_ranges)
+
+        if numba.get_num_threads() >= 2 and ranges.size >= THREADED_SLOTS:
+            (seg, head), _ = side_by_side(segmentation, ground_head)
+        else:
+            seg, head = segmentation(), ground_head()
+    else:
+        seg = segmentation()
+    h_local, glob, uniq, seg_area, smooth, small, dilated, v_local, v_offset, nv = seg
+
+    # Step 5: R_b. Points of small segments, and supported points left unlabelled by hole
+    # filling that the dilation reached, take their V_b label; smooth segments keep H_b.
+    # Step 6: classification. Urban: the largest smooth patch is ground, other smooth patches
+    # building; forest: smooth patches are trunks, ground comes from eq. (12).
+    ground = 0
+    if urban and not columns:
+        is_smooth = seg_area >= config.A
+        ground = _ground_segment(uniq[is_smooth], seg_area[is_smooth], state if carry else None)
+    # (step 5 and step 6's codes in one pass)
+    segments, _nonsmooth, out = kernels.combine_codes(
+        ranges, h_local, glob.astype(np.int32), smooth, small, dilated, v_local, v_offset, supported, ground,
+        L.BUILDING if urban else L.TRUNK, L.GROUND, L.VEGETATION, L.NOISE, L.UNCLASSIFIED,
+    )  # fmt: skip
+    if not urban:
+        axis = config.density_axis or ("rows" if wrap else "columns")
+        out[column_density_ground(smooth, config, axis) & supported] = L.GROUND
+    ground_result, ground_error = None, None
+    if columns:
+        if isinstance(head, GroundModelError):
+            ground_error = str(head)
+            log.debug("PRC column ground: no ground in this sweep: %s", head)
+        else:
+            (plane, tilt, z_ref, order), seeded = head
+            ground_result = ground_from_frame(
+                xyz, valid, config, plane, tilt, z_ref, order, segments=segments, smooth=smooth, ranges=rays_ranges,
+                n_ids=int(max(glob.max(initial=0), v_offset + nv)) + 1, seeded=seeded,
+            )  # fmt: skip
+            np.copyto(out, np.uint8(L.GROUND), where=ground_result.ground)
+
+    if carry:
+        state.last_row = segments[-1].copy()
+    return BlockResult(
+        labels=out,
+        segments=segments,
+        supported=supported,
+        smooth=smooth,
+        one_sided=one_sided,
+        row0=row0,
+        ground=ground_result,
+        ground_error=ground_error,
+    )
+
+
+def _segment(
+    ranges: np.ndarray,
+    supported: np.ndarray,
+    grad: np.ndarray,
+    config: PRCConfig,
+    wrap: bool,
+    state: PRCState,
+    carry: bool,
+) -> tuple:
+    """Steps 3 and 4 of Algorithm 1 (``H_b`` and ``V_b``); updates ``state``."""
+    cols = ranges.shape[1]
     # Step 3: H_b.
     foreground = supported & ~grad
     cc, n = kernels.connected_components(foreground, wrap)
@@ -286,60 +396,7 @@ def prc_block(
     v_local, nv = kernels.connected_components(dilated, wrap)
     v_offset = state.next_label - 1
     state.next_label += nv
-
-    # Step 5: R_b. Points of small segments, and supported points left unlabelled by hole
-    # filling that the dilation reached, take their V_b label; smooth segments keep H_b.
-    # Step 6: classification. Urban: the largest smooth patch is ground, other smooth patches
-    # building; forest: smooth patches are trunks, ground comes from eq. (12).
-    urban = config.mode == "urban"
-    columns = urban and _column_ground_applies(config, sensor)
-    ground = 0
-    if urban and not columns:
-        is_smooth = seg_area >= config.A
-        ground = _ground_segment(uniq[is_smooth], seg_area[is_smooth], state if carry else None)
-    # (step 5 and step 6's codes in one pass)
-    segments, _nonsmooth, out = kernels.combine_codes(
-        ranges, h_local, glob.astype(np.int32), smooth, small, dilated, v_local, v_offset, supported, ground,
-        L.BUILDING if urban else L.TRUNK, L.GROUND, L.VEGETATION, L.NOISE, L.UNCLASSIFIED,
-    )  # fmt: skip
-    if not urban:
-        axis = config.density_axis or ("rows" if wrap else "columns")
-        out[column_density_ground(smooth, config, axis) & supported] = L.GROUND
-    ground_result, ground_error = None, None
-    if columns:
-        assert sensor is not None  # checked by _column_ground_applies
-        try:
-            # ground is a class of the returns that are not isolated: supported or one-sided
-            xyz, rays_ranges = _rays_and_ranges(sensor, ranges)
-            ground_result = column_ground(
-                xyz,
-                supported | one_sided,
-                config,
-                altitude=getattr(sensor, "altitude", None),
-                segments=segments,
-                smooth=smooth,
-                state=ground_state,
-                ranges=rays_ranges,
-                n_ids=int(max(glob.max(initial=0), v_offset + nv)) + 1,
-            )
-        except GroundModelError as exc:
-            ground_error = str(exc)
-            log.debug("PRC column ground: no ground in this sweep: %s", exc)
-        else:
-            np.copyto(out, np.uint8(L.GROUND), where=ground_result.ground)
-
-    if carry:
-        state.last_row = segments[-1].copy()
-    return BlockResult(
-        labels=out,
-        segments=segments,
-        supported=supported,
-        smooth=smooth,
-        one_sided=one_sided,
-        row0=row0,
-        ground=ground_result,
-        ground_error=ground_error,
-    )
+    return h_local, glob, uniq, seg_area, smooth, small, dilated, v_local, v_offset, nv
 
 
 def _rays_and_ranges(sensor: SensorModel, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:

@@ -218,7 +218,7 @@ def _padded(ranges, xi_s, wrap):
 
 
 @njit(cache=True, nogil=True)
-def _support_rows(ranges, pr, pt, xi_p, half_in, need_in, need_adj, wrap, uniform, reach):
+def _support_rows(ranges, pr, pt, xi_p, half_in, need_in, need_adj, wrap, uniform, reach, r0, r1):
     """The two conditions of eq. (4) for every slot, counted row by row without branches (the
     loops vectorise): the same neighbourhoods as :func:`support_counts`, for images with more
     than ``2 max(reach, half_in) + 1`` columns (no slot is then its own or a double neighbour).
@@ -233,20 +233,23 @@ def _support_rows(ranges, pr, pt, xi_p, half_in, need_in, need_adj, wrap, unifor
 
     Returns
     -------
-    in_met, adj_met : bool arrays, shape (rows, cols), False for slots without a return
+    in_met, adj_met : bool arrays, shape (r1 - r0, cols): rows ``r0..r1-1``, False for slots
+        without a return
     """
-    R, C = ranges.shape
+    C = ranges.shape[1]
     h = half_in
     span = max(reach, half_in)
     far = 4 * C + 4 * span + 4
-    in_met = np.zeros((R, C), np.bool_)
-    adj_met = np.zeros((R, C), np.bool_)
+    in_met_all = np.zeros((r1 - r0, C), np.bool_)
+    adj_met_all = np.zeros((r1 - r0, C), np.bool_)
     pos = np.empty(C + 2 * h, np.int64)
     val = np.empty(C + 2 * h, np.float32)
     thr = np.empty(C + 2 * h, np.float32)
     idx = np.empty(C, np.int64)
     cnt = np.zeros(C, np.int32)
-    for r in range(R):
+    for r in range(r0, r1):
+        in_met = in_met_all[r - r0]
+        adj_met = adj_met_all[r - r0]
         # ---- in-slice (eq. 8): pack the row's returns, pad, count over shifted views
         m = 0
         for c in range(C):
@@ -300,7 +303,7 @@ def _support_rows(ranges, pr, pt, xi_p, half_in, need_in, need_adj, wrap, unifor
                         abs(v0[k] - va[k]) < max(t0[k], ta[k])
                     ) + np.int32(p0[k] - pb[k] <= span) * np.int32(abs(v0[k] - vb[k]) < max(t0[k], tb[k]))
         for k in range(m):
-            in_met[r, idx[k]] = n[k] >= need_in
+            in_met[idx[k]] = n[k] >= need_in
         # ---- adjacent slice (eq. 7): columns c-1, c, c+1 of the rows above and below
         n = cnt[:C]
         n[:] = 0
@@ -317,8 +320,8 @@ def _support_rows(ranges, pr, pt, xi_p, half_in, need_in, need_adj, wrap, unifor
                     for c in range(C):
                         n[c] += np.int32(va[c] > 0.0) * np.int32(abs(v0[c] - va[c]) < max(t0[c], ta[c]))
         for c in range(C):
-            adj_met[r, c] = (n[c] >= need_adj) & (v0[c] > 0.0)
-    return in_met, adj_met
+            adj_met[c] = (n[c] >= need_adj) & (v0[c] > 0.0)
+    return in_met_all, adj_met_all
 
 
 @njit(cache=True, nogil=True)
@@ -365,29 +368,10 @@ def support_and_gradient(
     if C > 2 * max(reach, half_in) + 1:
         # row-wise counting (vectorised); every neighbourhood fits in a row without overlap
         pr, pt = _padded(ranges, xi_s, wrap)
-        in_met, adj_met = _support_rows(ranges, pr, pt, xi_p, half_in, need_in, need_adj, wrap, uniform, reach)
-        for r in range(R):
-            v0 = pr[r + 1, 1 : C + 1]
-            left = pr[r + 1, 0:C]
-            right = pr[r + 1, 2 : C + 2]
-            up = pr[r, 1 : C + 1]
-            down = pr[r + 2, 1 : C + 1]
-            for c in range(C):
-                s_ok = in_met[r, c] & adj_met[r, c]
-                sup[r, c] = s_ok
-                g = _gradient_break(left[c], v0[c], right[c], alpha, d_c, literal)
-                if both_axes:
-                    g = g | _gradient_break(up[c], v0[c], down[c], alpha, d_c, literal)
-                grad[r, c] = s_ok & g
-            for c in range(C):
-                if v0[c] > 0.0 and not sup[r, c]:
-                    if second:
-                        in2, adj2 = _support_met(
-                            ranges, r, c, xi_s2, xi_p2, half_in, need_in, need_adj, wrap, False, reach
-                        )
-                        one_sided[r, c] = in2 or adj2
-                    else:
-                        one_sided[r, c] = in_met[r, c] or adj_met[r, c]
+        support_rows(
+            ranges, pr, pt, xi_s, xi_p, half_in, need_in, need_adj, alpha, d_c, literal, wrap, both_axes, uniform,
+            reach, xi_s2, xi_p2, second, sup, grad, one_sided, 0, R,
+        )  # fmt: skip
         return sup, grad, one_sided
     for r in range(R):
         for c in range(C):
@@ -416,6 +400,62 @@ def support_and_gradient(
             elif both_axes and r > 0 and r + 1 < R:
                 grad[r, c] = _gradient_break(ranges[r - 1, c], ri, ranges[r + 1, c], alpha, d_c, literal)
     return sup, grad, one_sided
+
+
+@njit(cache=True, nogil=True)
+def support_rows(
+    ranges,
+    pr,
+    pt,
+    xi_s,
+    xi_p,
+    half_in,
+    need_in,
+    need_adj,
+    alpha,
+    d_c,
+    literal,
+    wrap,
+    both_axes,
+    uniform,
+    reach,
+    xi_s2,
+    xi_p2,
+    second,
+    sup,
+    grad,
+    one_sided,
+    r0,
+    r1,
+):
+    """Rows ``r0..r1-1`` of :func:`support_and_gradient` for blocks of more than
+    ``2 max(reach, half_in) + 1`` columns, written into ``sup, grad, one_sided`` (rows outside
+    are neither read nor written: row ranges can be run on separate threads). ``pr, pt``:
+    :func:`_padded` of ``ranges, xi_s``."""
+    C = ranges.shape[1]
+    in_met, adj_met = _support_rows(ranges, pr, pt, xi_p, half_in, need_in, need_adj, wrap, uniform, reach, r0, r1)
+    for r in range(r0, r1):
+        v0 = pr[r + 1, 1 : C + 1]
+        left = pr[r + 1, 0:C]
+        right = pr[r + 1, 2 : C + 2]
+        up = pr[r, 1 : C + 1]
+        down = pr[r + 2, 1 : C + 1]
+        im = in_met[r - r0]
+        am = adj_met[r - r0]
+        for c in range(C):
+            s_ok = im[c] & am[c]
+            sup[r, c] = s_ok
+            g = _gradient_break(left[c], v0[c], right[c], alpha, d_c, literal)
+            if both_axes:
+                g = g | _gradient_break(up[c], v0[c], down[c], alpha, d_c, literal)
+            grad[r, c] = s_ok & g
+        for c in range(C):
+            if v0[c] > 0.0 and not sup[r, c]:
+                if second:
+                    in2, adj2 = _support_met(ranges, r, c, xi_s2, xi_p2, half_in, need_in, need_adj, wrap, False, reach)
+                    one_sided[r, c] = in2 or adj2
+                else:
+                    one_sided[r, c] = im[c] or am[c]
 
 
 @njit(cache=True, nogil=True)
@@ -463,12 +503,12 @@ def gradient_background(ranges, supported, alpha, d_c, literal, wrap, both_axes)
 def _gradient_break(a, ri, b, alpha, d_c, literal):
     """True when eq. (9) fails for ``r_{i-1} = a, r_i = ri, r_{i+1} = b`` (False if a neighbour
     has no return)."""
-    if a <= 0.0 or b <= 0.0:
-        return False
+    # without branches (the callers' loops vectorise)
+    both = (a > 0.0) & (b > 0.0)
     if literal:
         q = (ri - a) / max(b - a, d_c)
-        return not (alpha < q < 1.0 - alpha)
-    return abs((b - ri) - (ri - a)) >= (1.0 - 2.0 * alpha) * max(abs(b - a), d_c)
+        return both & (not ((alpha < q) & (q < 1.0 - alpha)))
+    return both & (abs((b - ri) - (ri - a)) >= (1.0 - 2.0 * alpha) * max(abs(b - a), d_c))
 
 
 @njit(cache=True, nogil=True)
@@ -694,12 +734,19 @@ def fill_holes_sized(labels, holes, wrap, n):
     out = np.empty((R, C), np.int32)
     size = np.zeros(n + 1, np.int64)
     v = np.zeros(8, np.int32)
+    last = 0  # sizes counted by runs of one label (increments of one entry do not chain)
+    run = 0
     for r in range(R):
         for c in range(C):
             if not holes[r, c]:
                 x = labels[r, c]
                 out[r, c] = x
-                size[x] += 1
+                if x == last:
+                    run += 1
+                else:
+                    size[last] += run
+                    last = x
+                    run = 1
                 continue
             cm = c - 1
             cp = c + 1
@@ -743,7 +790,13 @@ def fill_holes_sized(labels, holes, wrap, n):
                         best = va
                         best_n = k
             out[r, c] = best
-            size[best] += 1
+            if best == last:
+                run += 1
+            else:
+                size[last] += run
+                last = best
+                run = 1
+    size[last] += run
     return out, size
 
 
