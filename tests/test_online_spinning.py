@@ -329,6 +329,12 @@ def test_least_area_footprint_of_a_car_seen_at_its_corner(turn, length, width, n
     assert got_w <= max(pca[4][1], pca[5][1]) + slack and got_l * got_w <= pca[4][1] * pca[5][1] + slack * (
         length + width
     )
+    # the rectangle is searched only where a car could pass: else the principal-axis extents
+    for gate in [(n + 1, np.inf, np.inf), (0, 0.4, np.inf), (0, np.inf, 0.4)]:
+        skipped = segment_features(seg, 1, xyz, h, ok, 0.3, True, *gate)
+        assert (skipped[4][1], skipped[5][1]) == (pca[4][1], pca[5][1])
+    kept = segment_features(seg, 1, xyz, h, ok, 0.3, True, n, 1.0, 0.5)
+    assert (kept[4][1], kept[5][1]) == (got_l, got_w)
 
 
 def test_a_trunk_with_a_low_shrub_at_its_foot_is_no_car():

@@ -267,11 +267,18 @@ def outline_tops(seg, n, valid, high, xyz, rng, alt, min_gate, gate_factor, max_
 
 
 @njit(cache=True, nogil=True)
-def segment_features(seg, n, xyz, height, valid, baseline, min_area=True):
+def segment_features(
+    seg, n, xyz, height, valid, baseline, min_area=True, area_points=0, area_top=np.inf, area_bottom=np.inf
+):
     """Per segment (index 1..n): points, lowest and highest height above ground, footprint
     length / width (of the least-area rectangle over 18 headings; ``min_area=False``: along the
     principal axis), thickness (10-90 % spread across that
-    axis, from a histogram), and the median normalised second difference along rings."""
+    axis, from a histogram), and the median normalised second difference along rings.
+
+    The least-area rectangle is searched only for segments of at least ``area_points`` returns
+    whose 90 % height is at most ``area_top`` and whose lowest return at most ``area_bottom``
+    (what a car must pass anyway; buildings and trees, most of the returns, fail it): the others
+    keep the extents along the principal axis."""
     R, C = seg.shape
     cnt = np.zeros(n + 1)
     sx = np.zeros(n + 1)
@@ -407,10 +414,11 @@ def segment_features(seg, n, xyz, height, valid, baseline, min_area=True):
         sa = np.sin(np.arange(n_ang) * (0.5 * np.pi / n_ang))
         lo_a = np.full((n + 1, n_ang, 2), np.inf)
         hi_a = np.full((n + 1, n_ang, 2), -np.inf)
+        area = (cnt >= area_points) & (top90 <= area_top) & (hlo <= area_bottom)
         for r in range(R):
             for c in range(C):
                 k = seg[r, c]
-                if k == 0:
+                if k == 0 or not area[k]:
                     continue
                 x = xyz[r, c, 0] - mx[k]
                 y = xyz[r, c, 1] - my[k]
@@ -422,7 +430,7 @@ def segment_features(seg, n, xyz, height, valid, baseline, min_area=True):
                     lo_a[k, j, 1] = min(lo_a[k, j, 1], v)
                     hi_a[k, j, 1] = max(hi_a[k, j, 1], v)
         for k in range(1, n + 1):
-            if cnt[k] == 0:
+            if cnt[k] == 0 or not area[k]:
                 continue
             best = np.inf
             for j in range(n_ang):
@@ -645,7 +653,7 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     """Steps 4-6 on the segments 1..n of ``seg_o`` (rows in elevation order): the accepted mask
     per segment (index 0 unused, False) and the features behind it."""
     cnt, hlo, hhi, top90, length, width, thick, rough, n_rough = segment_features(
-        seg_o, n, xyz, height, valid, p.ring_baseline, p.min_area
+        seg_o, n, xyz, height, valid, p.ring_baseline, p.min_area, p.min_points, p.max_top, p.max_bottom
     )
     share = high_touch / np.maximum(tops, 1)
     cols = seg_o.shape[1]
