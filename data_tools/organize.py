@@ -160,7 +160,7 @@ def _atan2(y, x):
     return r
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True)
 def _polar(xyz, offset, ok, rng, az, te, cloud, small=0.7853981633974483):
     """Per point: has a return, range, azimuth (rad, (-pi, pi]) and the tangent of the beam
     elevation ``z / (rho - offset)``, ``offset`` being the horizontal distance of the beam
@@ -169,11 +169,19 @@ def _polar(xyz, offset, ok, rng, az, te, cloud, small=0.7853981633974483):
     steps between consecutive returns smaller than ``small`` and the signed sum of those
     steps (revolutions * 2 pi), which tell the point order. Writes into ``ok, rng, az, te``
     (work arrays reused from sweep to sweep: fresh ones cost page faults) and copies the
-    points into ``cloud`` (float32, no-return rows zeroed)."""
-    n = xyz.shape[0]
-    a64 = np.empty(n)  # the azimuths in double precision, for the order statistics
+    points into ``cloud`` (float32, no-return rows zeroed). (:func:`_polar_points` over all
+    points, then :func:`_order_stats`.)"""
+    a64 = np.empty(xyz.shape[0])
+    _polar_points(xyz, offset, ok, rng, az, te, cloud, a64, 0, xyz.shape[0])
+    return _order_stats(a64, ok, small)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _polar_points(xyz, offset, ok, rng, az, te, cloud, a64, lo, hi):
+    """The per-point part of :func:`_polar` for points ``lo..hi-1`` (ranges of points can run on
+    separate threads); ``a64``: the azimuths in double precision, for :func:`_order_stats`."""
     # per point, without branches (the loop vectorises; values as _atan2 and the guards give)
-    for i in range(n):
+    for i in range(lo, hi):
         x = float(xyz[i, 0])
         y = float(xyz[i, 1])
         z = float(xyz[i, 2])
@@ -202,7 +210,13 @@ def _polar(xyz, offset, ok, rng, az, te, cloud, small=0.7853981633974483):
         h = math.sqrt(rho2) - offset
         t = z / h if h > 1e-6 else (1e6 if z > 0 else -1e6)
         te[i] = t if good else 0.0
-    # along the input order: steps between consecutive returns
+
+
+@njit(cache=True, nogil=True)
+def _order_stats(a64, ok, small):
+    """The order part of :func:`_polar`: along the input order, the share of steps between
+    consecutive returns smaller than ``small`` and their signed sum."""
+    n = a64.shape[0]
     prev = 0.0
     have = False
     steps = 0
@@ -630,16 +644,27 @@ def _gather(rep, src, out):
 def _fill_slots(rep, rng, xyz):
     """Range and coordinates of every slot's representative (zeros for empty slots)."""
     size = rep.shape[0]
-    ranges = np.zeros(size, np.float32)
-    out = np.zeros((size, 3), np.float32)
-    for k in range(size):
+    ranges = np.empty(size, np.float32)
+    out = np.empty((size, 3), np.float32)
+    _fill_slots_into(rep, rng, xyz, ranges, out, 0, size)
+    return ranges, out
+
+
+@njit(cache=True, nogil=True)
+def _fill_slots_into(rep, rng, xyz, ranges, out, lo, hi):
+    """:func:`_fill_slots` for slots ``lo..hi-1``, written into ``ranges, out``."""
+    for k in range(lo, hi):
         j = rep[k]
         if j >= 0:
             ranges[k] = rng[j]
             out[k, 0] = xyz[j, 0]
             out[k, 1] = xyz[j, 1]
             out[k, 2] = xyz[j, 2]
-    return ranges, out
+        else:
+            ranges[k] = 0.0
+            out[k, 0] = 0.0
+            out[k, 1] = 0.0
+            out[k, 2] = 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -987,7 +1012,9 @@ class Organizer:
             self._work("az", n, np.float32),
             self._work("te", n, np.float32),
         )
-        self._order = _polar(xyz, self.beam_offset, ok, rng, az, te, cloud)
+        a64 = self._work("a64", n, np.float64)
+        _polar_points(xyz, self.beam_offset, ok, rng, az, te, cloud, a64, 0, n)
+        self._order = _order_stats(a64, ok, 0.7853981633974483)  # steps under 45 deg
         n_ok = int(ok.sum())
         if n_ok == 0:
             raise DataError(f"{source}: no point with a return ({n} points, all NaN/inf or at the origin)")

@@ -748,25 +748,35 @@ def fill_holes_sized(labels, holes, wrap, n):
                     last = x
                     run = 1
                 continue
-            cm = c - 1
-            cp = c + 1
-            if wrap:
-                if cm < 0:
-                    cm += C
-                if cp >= C:
-                    cp -= C
-            a = 0
-            for dr in range(-1, 2):
-                rr = r + dr
-                for dc in range(-1, 2):
-                    if dr == 0 and dc == 0:
-                        continue
-                    cc = cm if dc < 0 else (cp if dc > 0 else c)
-                    if rr < 0 or rr >= R or cc < 0 or cc >= C:
-                        v[a] = 0
-                    else:
-                        v[a] = labels[rr, cc]
-                    a += 1
+            if 0 < r < R - 1 and 0 < c < C - 1:  # interior: no bounds to check
+                v[0] = labels[r - 1, c - 1]
+                v[1] = labels[r - 1, c]
+                v[2] = labels[r - 1, c + 1]
+                v[3] = labels[r, c - 1]
+                v[4] = labels[r, c + 1]
+                v[5] = labels[r + 1, c - 1]
+                v[6] = labels[r + 1, c]
+                v[7] = labels[r + 1, c + 1]
+            else:
+                cm = c - 1
+                cp = c + 1
+                if wrap:
+                    if cm < 0:
+                        cm += C
+                    if cp >= C:
+                        cp -= C
+                a = 0
+                for dr in range(-1, 2):
+                    rr = r + dr
+                    for dc in range(-1, 2):
+                        if dr == 0 and dc == 0:
+                            continue
+                        cc = cm if dc < 0 else (cp if dc > 0 else c)
+                        if rr < 0 or rr >= R or cc < 0 or cc >= C:
+                            v[a] = 0
+                        else:
+                            v[a] = labels[rr, cc]
+                        a += 1
             first = 0
             mixed = False
             for a in range(8):
