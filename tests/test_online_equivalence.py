@@ -11,7 +11,7 @@ from prc_slam.online import kernels as K
 from prc_slam.online.car import oriented_box, oriented_boxes_of
 from prc_slam.online.curb import group_medians, possible_curbs, region_stats
 from prc_slam.online.ground import _lowest_mean
-from prc_slam.online.spinning import _heights, graph_components, segment_tops
+from prc_slam.online.spinning import _heights, graph_components, relabel, segment_tops
 
 SETTINGS = settings(max_examples=60, deadline=None)
 
@@ -331,3 +331,14 @@ def test_graph_components_number_as_scipy_does(seed, n, m):
     a, b = rng.integers(0, n, m), rng.integers(0, n, m)
     _, expected = connected_components(coo_matrix((np.ones(m), (a, b)), shape=(n, n)), directed=False)
     np.testing.assert_array_equal(graph_components(n, a, b), expected)
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(1, 30), st.integers(1, 30), st.integers(1, 50))
+def test_relabel_is_lookup(seed, rows, cols, n):
+    rng = np.random.default_rng(seed)
+    seg = rng.integers(0, n + 1, (rows, cols)).astype(np.int32)
+    lut = rng.integers(-5, 100, n + 1).astype(np.int32)
+    got = relabel(seg, lut)
+    assert got.dtype == lut.dtype and got.shape == seg.shape
+    np.testing.assert_array_equal(got, lut[seg])

@@ -145,6 +145,17 @@ def _union(parent, a, b):
 
 
 @njit(cache=True, nogil=True)
+def relabel(seg, lut):
+    """``lut[seg]`` for an image of ids (what numpy's indexing gives, without converting every
+    id to a pointer-sized index first)."""
+    out = np.empty(seg.shape, lut.dtype)
+    flat, src = out.reshape(-1), seg.reshape(-1)
+    for i in range(src.shape[0]):
+        flat[i] = lut[src[i]]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def graph_components(n_nodes, a, b):
     """Connected components of the undirected graph on nodes ``0..n_nodes - 1`` with edges
     ``a[i] - b[i]``: a label per node, numbered 0, 1, ... in the order of each component's lowest
@@ -695,13 +706,13 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
     remap = np.zeros(n + 1, np.int32)
     remap[ok] = np.arange(1, int(ok.sum()) + 1)
     if p.grazing_links <= 0 or n < 2:
-        return remap[seg_o], 0
+        return relabel(seg_o, remap), 0
     low, up = grazing_links(seg_o, valid, xyz, p.min_gate, p.max_length)
     face = (bottom <= p.max_bottom) & (roof < p.min_top)  # stands on the ground, too low for a car
     sel = face[low]
     low, up = low[sel], up[sel]
     if len(low) == 0:
-        return remap[seg_o], 0
+        return relabel(seg_o, remap), 0
     pair, votes = np.unique(low * (n + 1) + up, return_counts=True)
     keep = votes >= p.grazing_links
     a, b = pair // (n + 1), pair % (n + 1)
@@ -709,7 +720,7 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
     keep &= lows_of_up[b] == 1  # a roof spans no two cars
     keep &= ~np.isin(b, a[keep])  # no chains: a face's roof is no other roof's face
     if not keep.any():
-        return remap[seg_o], 0
+        return relabel(seg_o, remap), 0
     comp = graph_components(n + 1, a[keep], b[keep])
     size = np.bincount(comp, minlength=n + 1)
     # groups of two or more parts, numbered 1..g; lone segments keep their verdict
@@ -719,7 +730,7 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
     groups, gid[multi] = np.unique(comp[multi], return_inverse=True)
     gid[multi] += 1
     g = len(groups)
-    seg_g = gid.astype(np.int32)[seg_o]
+    seg_g = relabel(seg_o, gid.astype(np.int32))
     ht_g, tops_g = outline_tops(
         seg_g, g, valid, high, xyz, rng, alt, p.min_gate, p.gate_factor, p.max_gate, height, p.top_floor
     )
@@ -732,7 +743,7 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
     gnum = np.zeros(g + 1, np.int64)
     gnum[ok_g] = np.arange(1, int(ok_g.sum()) + 1) + int(alone.sum())
     final[take_g] = gnum[gid[take_g]]
-    return final.astype(np.int32)[seg_o], int(ok_g[1:].sum())
+    return relabel(seg_o, final.astype(np.int32)), int(ok_g[1:].sum())
 
 
 @njit(cache=True, nogil=True)
