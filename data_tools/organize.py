@@ -597,23 +597,26 @@ def _scatter(az, rng, row, a0, s, inv_step, phase, rows, cols, rep):
     or multiple returns, which share their slot by nature). ``rep`` is a work array of
     ``rows * cols`` entries."""
     n = az.shape[0]
-    slot = np.full(n, -1, np.int64)
+    slot = np.empty(n, np.int64)
     rep[:] = -1
     per_row = np.zeros(rows, np.int64)
     collisions = 0
     multi = 0
     same = 0.01 / inv_step
+    # the column of every point, without branches (the loop vectorises)
+    for i in range(n):
+        u = s * (az[i] - a0) * inv_step - phase[max(row[i], 0)] + 0.5
+        c = int(math.floor(u))  # noqa: RUF046 (numba: explicit int)
+        # u lies within about one turn of [0, cols): a subtraction spares the integer modulo
+        c = c + cols if c < 0 else c
+        c = c - cols if c >= cols else c
+        slot[i] = c
     for i in range(n):
         r = row[i]
         if r < 0:
+            slot[i] = -1
             continue
-        u = s * (az[i] - a0) * inv_step - phase[r] + 0.5
-        c = int(math.floor(u))  # noqa: RUF046 (numba: explicit int)
-        # u lies within about one turn of [0, cols): a subtraction spares the integer modulo
-        if c < 0:
-            c += cols
-        elif c >= cols:
-            c -= cols
+        c = slot[i]
         if c < 0 or c >= cols:
             c %= cols
         k = r * cols + c
