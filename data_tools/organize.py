@@ -169,63 +169,39 @@ def _polar(xyz, offset, ok, rng, az, te, cloud, small=0.7853981633974483):
     steps between consecutive returns smaller than ``small`` and the signed sum of those
     steps (revolutions * 2 pi), which tell the point order. Writes into ``ok, rng, az, te``
     (work arrays reused from sweep to sweep: fresh ones cost page faults) and copies the
-    points into ``cloud`` (float32, no-return rows zeroed). (:func:`_polar_points` over all
-    points, then :func:`_order_stats`.)"""
-    a64 = np.empty(xyz.shape[0])
-    _polar_points(xyz, offset, ok, rng, az, te, cloud, a64, 0, xyz.shape[0])
-    return _order_stats(a64, ok, small)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _polar_points(xyz, offset, ok, rng, az, te, cloud, a64, lo, hi):
-    """The per-point part of :func:`_polar` for points ``lo..hi-1`` (ranges of points can run on
-    separate threads); ``a64``: the azimuths in double precision, for :func:`_order_stats`."""
-    # per point, without branches (the loop vectorises; values as _atan2 and the guards give)
-    for i in range(lo, hi):
-        x = float(xyz[i, 0])
-        y = float(xyz[i, 1])
-        z = float(xyz[i, 2])
-        rho2 = x * x + y * y
-        r2 = rho2 + z * z
-        good = math.isfinite(r2) & (r2 > 0.0)
-        ok[i] = good
-        cloud[i, 0] = x if good else 0.0
-        cloud[i, 1] = y if good else 0.0
-        cloud[i, 2] = z if good else 0.0
-        rng[i] = math.sqrt(r2) if good else 0.0
-        ax = abs(x)
-        ay = abs(y)
-        mx = max(ax, ay)
-        q = min(ax, ay) / mx
-        q2 = q * q
-        a = (
-            ((((-0.0117212 * q2 + 0.05265332) * q2 - 0.11643287) * q2 + 0.19354346) * q2 - 0.33262347) * q2 + 0.99997726
-        ) * q
-        a = 1.5707963267948966 - a if ay > ax else a
-        a = 3.141592653589793 - a if x < 0.0 else a
-        a = -a if y < 0.0 else a
-        a = a if mx != 0.0 else 0.0
-        a64[i] = a
-        az[i] = a if good else 0.0
-        h = math.sqrt(rho2) - offset
-        t = z / h if h > 1e-6 else (1e6 if z > 0 else -1e6)
-        te[i] = t if good else 0.0
-
-
-@njit(cache=True, nogil=True)
-def _order_stats(a64, ok, small):
-    """The order part of :func:`_polar`: along the input order, the share of steps between
-    consecutive returns smaller than ``small`` and their signed sum."""
-    n = a64.shape[0]
+    points into ``cloud`` (float32, no-return rows zeroed)."""
+    n = xyz.shape[0]
     prev = 0.0
     have = False
     steps = 0
     n_small = 0
     total = 0.0
     for i in range(n):
-        if not ok[i]:
+        x = float(xyz[i, 0])
+        y = float(xyz[i, 1])
+        z = float(xyz[i, 2])
+        rho2 = x * x + y * y
+        r2 = rho2 + z * z
+        good = math.isfinite(r2) and r2 > 0.0
+        ok[i] = good
+        if good:
+            cloud[i, 0] = x
+            cloud[i, 1] = y
+            cloud[i, 2] = z
+        else:
+            cloud[i, 0] = 0.0
+            cloud[i, 1] = 0.0
+            cloud[i, 2] = 0.0
+            rng[i] = 0.0
+            az[i] = 0.0
+            te[i] = 0.0
             continue
-        a = a64[i]
+        rho = math.sqrt(rho2)
+        rng[i] = math.sqrt(r2)
+        a = _atan2(y, x)
+        az[i] = a
+        h = rho - offset
+        te[i] = z / h if h > 1e-6 else (1e6 if z > 0 else -1e6)
         if have:
             d = a - prev
             if d > np.pi:
@@ -1015,9 +991,7 @@ class Organizer:
             self._work("az", n, np.float32),
             self._work("te", n, np.float32),
         )
-        a64 = self._work("a64", n, np.float64)
-        _polar_points(xyz, self.beam_offset, ok, rng, az, te, cloud, a64, 0, n)
-        self._order = _order_stats(a64, ok, 0.7853981633974483)  # steps under 45 deg
+        self._order = _polar(xyz, self.beam_offset, ok, rng, az, te, cloud)
         n_ok = int(ok.sum())
         if n_ok == 0:
             raise DataError(f"{source}: no point with a return ({n} points, all NaN/inf or at the origin)")
