@@ -191,6 +191,9 @@ def test_fused_kernels_equal_the_step_kernels(seed):
     height2, ok2 = G.cells_and_segments(rho, z, seed_ref, cell_cols, 1.0, 200, segments, smooth, 0.5, 12, True)
     assert np.array_equal(height, height2, equal_nan=True)
     assert np.array_equal(ok, ok2[: len(ok)]) and not ok2[len(ok) :].any()
+    assert np.array_equal(G.segment_shares(segments, smooth, seed_ref, 0.5, 12), ok2)
+    cfg = PRCConfig.preset("multibeam")
+    assert np.array_equal(G.seed_cell_heights(rho, z, seed_ref, cfg), height, equal_nan=True)
     cfg = PRCConfig.preset("multibeam")
     try:
         a = G.column_ground(xyz, valid, cfg, altitude=sensor.altitude, segments=segments, smooth=smooth)

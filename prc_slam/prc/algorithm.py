@@ -34,6 +34,7 @@ from prc_slam.prc.ground import (
     GroundState,
     ground_frame,
     ground_from_frame,
+    seed_cell_heights,
     seed_in_frame,
 )
 from prc_slam.scan import Scan, SensorModel, SpinningSensor
@@ -304,7 +305,8 @@ def prc_block(
                 frame = ground_frame(xyz, valid, altitude=altitude, state=ground_state, ranges=rays_ranges)
             except GroundModelError as exc:
                 return exc
-            return frame, seed_in_frame(xyz, valid, config, frame[0], frame[2], frame[3], ranges=rays_ranges)
+            seeded = seed_in_frame(xyz, valid, config, frame[0], frame[2], frame[3], ranges=rays_ranges)
+            return frame, seeded, seed_cell_heights(seeded[0], seeded[1], seeded[2], config)
 
         if numba.get_num_threads() >= 2 and ranges.size >= THREADED_SLOTS:
             (seg, head), _ = side_by_side(segmentation, ground_head)
@@ -336,10 +338,10 @@ def prc_block(
             ground_error = str(head)
             log.debug("PRC column ground: no ground in this sweep: %s", head)
         else:
-            (plane, tilt, z_ref, order), seeded = head
+            (plane, tilt, z_ref, order), seeded, height = head
             ground_result = ground_from_frame(
                 xyz, valid, config, plane, tilt, z_ref, order, segments=segments, smooth=smooth, ranges=rays_ranges,
-                n_ids=int(max(glob.max(initial=0), v_offset + nv)) + 1, seeded=seeded,
+                n_ids=int(max(glob.max(initial=0), v_offset + nv)) + 1, seeded=seeded, height=height,
             )  # fmt: skip
             np.copyto(out, np.uint8(L.GROUND), where=ground_result.ground)
 

@@ -428,6 +428,23 @@ def cell_heights(rho, z, valid, seed, cell_cols, cell_m, n_bins):
     return height
 
 
+@njit(cache=True, nogil=True)
+def segment_shares(segments, smooth, seed, share, n_ids):
+    """:func:`_ground_segments` with ``n_ids`` (any bound above the largest id) given."""
+    R, C = segments.shape
+    total = np.zeros(n_ids, np.int64)
+    hits = np.zeros(n_ids, np.int64)
+    for r in range(R):
+        for c in range(C):
+            if smooth[r, c]:
+                total[segments[r, c]] += 1
+                hits[segments[r, c]] += seed[r, c]
+    ok = np.zeros(n_ids, np.bool_)
+    for i in range(1, n_ids):
+        ok[i] = total[i] > 0 and hits[i] >= share * total[i]
+    return ok
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _cell(rho, c, cell_cols, cell_m, n_bins):
     return (c // cell_cols) * n_bins + min(int(rho / cell_m), n_bins - 1)
@@ -603,9 +620,11 @@ def ground_from_frame(
     ranges: np.ndarray | None = None,
     n_ids: int | None = None,
     seeded: tuple[np.ndarray, np.ndarray, np.ndarray, int] | None = None,
+    height: np.ndarray | None = None,
 ) -> GroundResult:
     """Steps 1-3 of :func:`column_ground` given its steps 0 and 4 (:func:`ground_frame`).
-    ``seeded``: the result of :func:`seed_in_frame` when already computed."""
+    ``seeded``: the result of :func:`seed_in_frame` when already computed; ``height``: the cell
+    heights of step 2 (:func:`seed_cell_heights`) when already computed."""
     if seeded is None:
         seeded = seed_in_frame(xyz, valid, config, plane, z_ref, order, ranges=ranges)
     rho, z, seed, n_seed = seeded
@@ -615,10 +634,7 @@ def ground_from_frame(
     if not (use_cells or use_segments):
         return GroundResult(seed, seed, plane, tilt, z_ref, counts)
     valid = np.asarray(valid, dtype=bool)
-    cols = valid.shape[1]
-    cell_cols = max(1, round(cols * config.ground_cell_deg / 360.0))
-    n_bins = int(np.ceil(200.0 / config.ground_cell_m))
-    cell_m = float(config.ground_cell_m)
+    cell_cols, cell_m, n_bins = _cell_grid(valid.shape[1], config)
     if use_segments:
         seg = np.ascontiguousarray(segments, dtype=np.int32)
         smooth_arr = np.ascontiguousarray(smooth, dtype=bool)
@@ -628,10 +644,15 @@ def ground_from_frame(
         seg = np.zeros(valid.shape, np.int32)
         smooth_arr = np.zeros(valid.shape, dtype=bool)
         n_ids = 1
-    height, seg_ok = cells_and_segments(
-        rho, z, seed, cell_cols, cell_m, n_bins, seg, smooth_arr, float(config.ground_segment_share), int(n_ids),
-        use_segments,
-    )  # fmt: skip
+    share = float(config.ground_segment_share)
+    if height is None:
+        height, seg_ok = cells_and_segments(
+            rho, z, seed, cell_cols, cell_m, n_bins, seg, smooth_arr, share, int(n_ids), use_segments
+        )
+    elif use_segments:
+        seg_ok = segment_shares(seg, smooth_arr, seed, share, int(n_ids))
+    else:
+        seg_ok = np.zeros(1, dtype=bool)
     ground, dropped, added = _grow(
         rho,
         z,
@@ -651,6 +672,19 @@ def ground_from_frame(
     counts["dropped_by_cells"] = int(dropped)
     counts["added_by_segments"] = int(added)
     return GroundResult(ground, seed, plane, tilt, z_ref, counts)
+
+
+def _cell_grid(cols: int, config: object) -> tuple[int, float, int]:
+    """Columns per cell, cell depth (m) and range bins of the polar cells of step 2."""
+    cell_cols = max(1, round(cols * config.ground_cell_deg / 360.0))
+    return cell_cols, float(config.ground_cell_m), int(np.ceil(200.0 / config.ground_cell_m))
+
+
+def seed_cell_heights(rho: np.ndarray, z: np.ndarray, seed: np.ndarray, config: object) -> np.ndarray:
+    """Step 2's cell heights from the seed alone (:func:`cell_heights`), which need no PRC
+    segments: for :func:`ground_from_frame`'s ``height``."""
+    cell_cols, cell_m, n_bins = _cell_grid(seed.shape[1], config)
+    return cell_heights(rho, z, seed, seed, cell_cols, cell_m, n_bins)
 
 
 def seed_in_frame(
