@@ -191,7 +191,7 @@ def test_fused_kernels_equal_the_step_kernels(seed):
     height2, ok2 = G.cells_and_segments(rho, z, seed_ref, cell_cols, 1.0, 200, segments, smooth, 0.5, 12, True)
     assert np.array_equal(height, height2, equal_nan=True)
     assert np.array_equal(ok, ok2[: len(ok)]) and not ok2[len(ok) :].any()
-    assert np.array_equal(G.segment_shares(segments, smooth, seed_ref, 0.5, 12), ok2)
+    assert np.array_equal(G.segment_shares(segments, smooth, seed_ref, 0.5, 12, G._NO_LUT, False), ok2)
     cfg = PRCConfig.preset("multibeam")
     assert np.array_equal(G.seed_cell_heights(rho, z, seed_ref, cfg), height, equal_nan=True)
     cfg = PRCConfig.preset("multibeam")
@@ -204,6 +204,15 @@ def test_fused_kernels_equal_the_step_kernels(seed):
     )
     assert np.array_equal(a.ground, b.ground) and np.array_equal(a.seed, b.seed) and a.counts == b.counts
     assert np.array_equal(a.plane, b.plane) and a.z_ref == b.z_ref
+    # segment ids through a table (PRC's H_b ids to stream ids), several local ids sharing one
+    lut = rng.integers(1, 5, 7)
+    lut[0] = 0
+    c = G.column_ground(xyz, valid, cfg, altitude=sensor.altitude, segments=lut[segments], smooth=smooth)
+    plane, tilt, z_ref, order = G.ground_frame(xyz, valid, altitude=sensor.altitude)
+    d = G.ground_from_frame(
+        xyz, valid, cfg, plane, tilt, z_ref, order, segments=segments, smooth=smooth, seg_lut=lut
+    )  # fmt: skip
+    assert np.array_equal(c.ground, d.ground) and c.counts == d.counts
 
 
 def test_threaded_block_equals_serial():

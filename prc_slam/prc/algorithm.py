@@ -324,26 +324,39 @@ def prc_block(
     if urban and not columns:
         is_smooth = seg_area >= config.A
         ground = _ground_segment(uniq[is_smooth], seg_area[is_smooth], state if carry else None)
+
     # (step 5 and step 6's codes in one pass)
-    segments, _nonsmooth, out = kernels.combine_codes(
-        ranges, h_local, glob.astype(np.int32), smooth, small, dilated, v_local, v_offset, supported, ground,
-        L.BUILDING if urban else L.TRUNK, L.GROUND, L.VEGETATION, L.NOISE, L.UNCLASSIFIED,
-    )  # fmt: skip
+    def codes() -> tuple:
+        return kernels.combine_codes(
+            ranges, h_local, glob.astype(np.int32), smooth, small, dilated, v_local, v_offset, supported, ground,
+            L.BUILDING if urban else L.TRUNK, L.GROUND, L.VEGETATION, L.NOISE, L.UNCLASSIFIED,
+        )  # fmt: skip
+
+    ground_result, ground_error = None, None
+    if columns and not isinstance(head, GroundModelError):
+        (plane, tilt, z_ref, order), seeded, height = head
+
+        def ground_tail() -> GroundResult:
+            # the column ground's last steps read the ids of smooth segments only, which H_b
+            # gives (R_b keeps them): they run beside step 5
+            return ground_from_frame(
+                xyz, valid, config, plane, tilt, z_ref, order, segments=h_local, smooth=smooth, ranges=rays_ranges,
+                n_ids=int(max(glob.max(initial=0), v_offset + nv)) + 1, seeded=seeded, height=height, seg_lut=glob,
+            )  # fmt: skip
+
+        if numba.get_num_threads() >= 2 and ranges.size >= THREADED_SLOTS:
+            ((segments, _nonsmooth, out), ground_result), _ = side_by_side(codes, ground_tail)
+        else:
+            (segments, _nonsmooth, out), ground_result = codes(), ground_tail()
+        np.copyto(out, np.uint8(L.GROUND), where=ground_result.ground)
+    else:
+        segments, _nonsmooth, out = codes()
+        if columns:
+            ground_error = str(head)
+            log.debug("PRC column ground: no ground in this sweep: %s", head)
     if not urban:
         axis = config.density_axis or ("rows" if wrap else "columns")
         out[column_density_ground(smooth, config, axis) & supported] = L.GROUND
-    ground_result, ground_error = None, None
-    if columns:
-        if isinstance(head, GroundModelError):
-            ground_error = str(head)
-            log.debug("PRC column ground: no ground in this sweep: %s", head)
-        else:
-            (plane, tilt, z_ref, order), seeded, height = head
-            ground_result = ground_from_frame(
-                xyz, valid, config, plane, tilt, z_ref, order, segments=segments, smooth=smooth, ranges=rays_ranges,
-                n_ids=int(max(glob.max(initial=0), v_offset + nv)) + 1, seeded=seeded, height=height,
-            )  # fmt: skip
-            np.copyto(out, np.uint8(L.GROUND), where=ground_result.ground)
 
     if carry:
         state.last_row = segments[-1].copy()

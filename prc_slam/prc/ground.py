@@ -54,6 +54,8 @@ log = logging.getLogger("prc_slam.prc.ground")
 
 #: stands for the ranges where the kernels get coordinates rather than rays (never read)
 _NO_RANGES = np.zeros((1, 1), np.float32)
+#: stands for the segment id table where segments carry their ids (never read)
+_NO_LUT = np.zeros(1, np.int64)
 
 
 class GroundModelError(ValueError):
@@ -429,16 +431,18 @@ def cell_heights(rho, z, valid, seed, cell_cols, cell_m, n_bins):
 
 
 @njit(cache=True, nogil=True)
-def segment_shares(segments, smooth, seed, share, n_ids):
-    """:func:`_ground_segments` with ``n_ids`` (any bound above the largest id) given."""
+def segment_shares(segments, smooth, seed, share, n_ids, lut, use_lut):
+    """:func:`_ground_segments` with ``n_ids`` (any bound above the largest id) given; with
+    ``use_lut`` a slot's segment is ``lut[segments[r, c]]``."""
     R, C = segments.shape
     total = np.zeros(n_ids, np.int64)
     hits = np.zeros(n_ids, np.int64)
     for r in range(R):
         for c in range(C):
             if smooth[r, c]:
-                total[segments[r, c]] += 1
-                hits[segments[r, c]] += seed[r, c]
+                s = lut[segments[r, c]] if use_lut else segments[r, c]
+                total[s] += 1
+                hits[s] += seed[r, c]
     ok = np.zeros(n_ids, np.bool_)
     for i in range(1, n_ids):
         ok[i] = total[i] > 0 and hits[i] >= share * total[i]
@@ -482,11 +486,27 @@ def _ground_segments(segments, smooth, seed, share):
 
 @njit(cache=True, nogil=True)
 def _grow(
-    rho, z, valid, seed, height, cell_cols, cell_m, n_bins, tau, segments, smooth, seg_ok, use_cells, use_segments
+    rho,
+    z,
+    valid,
+    seed,
+    height,
+    cell_cols,
+    cell_m,
+    n_bins,
+    tau,
+    segments,
+    smooth,
+    seg_ok,
+    use_cells,
+    use_segments,
+    lut=_NO_LUT,
+    use_lut=False,
 ):
     """Steps 2 and 3 per slot: seeds consistent with their cell, plus smooth returns of
     ground-dominated segments within ``tau`` of their cell's height. Also returns the number of
-    seeds dropped and of returns added."""
+    seeds dropped and of returns added. With ``use_lut`` a slot's segment is
+    ``lut[segments[r, c]]``."""
     R, C = valid.shape
     out = np.zeros((R, C), np.bool_)
     dropped = 0
@@ -498,7 +518,9 @@ def _grow(
                 continue
             sd = seed[r, c]
             # only seeds and smooth returns of ground-dominated segments can be ground
-            if not (sd or (use_segments and smooth[r, c] and seg_ok[segments[r, c]])):
+            if not (
+                sd or (use_segments and smooth[r, c] and seg_ok[lut[segments[r, c]] if use_lut else segments[r, c]])
+            ):
                 continue
             near = True
             has = False
@@ -621,10 +643,13 @@ def ground_from_frame(
     n_ids: int | None = None,
     seeded: tuple[np.ndarray, np.ndarray, np.ndarray, int] | None = None,
     height: np.ndarray | None = None,
+    seg_lut: np.ndarray | None = None,
 ) -> GroundResult:
     """Steps 1-3 of :func:`column_ground` given its steps 0 and 4 (:func:`ground_frame`).
     ``seeded``: the result of :func:`seed_in_frame` when already computed; ``height``: the cell
-    heights of step 2 (:func:`seed_cell_heights`) when already computed."""
+    heights of step 2 (:func:`seed_cell_heights`) when already computed; ``seg_lut``: the
+    segment id of each value of ``segments`` (e.g. PRC's block-local ``H_b`` ids to stream ids:
+    only the smooth slots' ids are read, which ``H_b`` gives before ``R_b`` is combined)."""
     if seeded is None:
         seeded = seed_in_frame(xyz, valid, config, plane, z_ref, order, ranges=ranges)
     rho, z, seed, n_seed = seeded
@@ -638,19 +663,25 @@ def ground_from_frame(
     if use_segments:
         seg = np.ascontiguousarray(segments, dtype=np.int32)
         smooth_arr = np.ascontiguousarray(smooth, dtype=bool)
-        if n_ids is None:
+        if n_ids is None and seg_lut is not None:
+            n_ids = max(1, int(np.max(seg_lut, initial=0)) + 1)
+        elif n_ids is None:
             n_ids = max(1, int(seg.max()) + 1) if seg.size else 1
     else:
         seg = np.zeros(valid.shape, np.int32)
         smooth_arr = np.zeros(valid.shape, dtype=bool)
         n_ids = 1
     share = float(config.ground_segment_share)
+    use_lut = seg_lut is not None and use_segments
+    lut = np.ascontiguousarray(seg_lut, dtype=np.int64) if use_lut else _NO_LUT
+    if use_lut and height is None:
+        height = seed_cell_heights(rho, z, seed, config)
     if height is None:
         height, seg_ok = cells_and_segments(
             rho, z, seed, cell_cols, cell_m, n_bins, seg, smooth_arr, share, int(n_ids), use_segments
         )
     elif use_segments:
-        seg_ok = segment_shares(seg, smooth_arr, seed, share, int(n_ids))
+        seg_ok = segment_shares(seg, smooth_arr, seed, share, int(n_ids), lut, use_lut)
     else:
         seg_ok = np.zeros(1, dtype=bool)
     ground, dropped, added = _grow(
@@ -668,6 +699,8 @@ def ground_from_frame(
         seg_ok,
         use_cells,
         use_segments,
+        lut,
+        use_lut,
     )
     counts["dropped_by_cells"] = int(dropped)
     counts["added_by_segments"] = int(added)
