@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit, prange
 
+from prc_slam import unionfind as uf
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _slot(x, y, z, mask):
@@ -335,31 +337,6 @@ def _neighbourhood_sum(table, coords, values, radius):
 
 
 @njit(cache=True, nogil=True)
-def _root(parent, a):
-    while parent[a] != a:
-        parent[a] = parent[parent[a]]
-        a = parent[a]
-    return a
-
-
-@njit(cache=True, nogil=True)
-def _component_ids(parent):
-    """Component id of every voxel from its union-find ``parent``: ``0..`` in the order of each
-    component's first voxel."""
-    nv = parent.shape[0]
-    comp = np.empty(nv, np.int64)
-    ids = np.full(nv, -1, np.int64)
-    nc = 0
-    for v in range(nv):
-        r = _root(parent, v)
-        if ids[r] < 0:
-            ids[r] = nc
-            nc += 1
-        comp[v] = ids[r]
-    return comp
-
-
-@njit(cache=True, nogil=True)
 def _components(table, coords):
     """26-connected components of the occupied voxels (union-find), ids 0..C-1."""
     nv = coords.shape[0]
@@ -370,10 +347,8 @@ def _components(table, coords):
                 for dz in range(-1, 2):
                     u = find(table, coords, coords[v, 0] + dx, coords[v, 1] + dy, coords[v, 2] + dz)
                     if u > v:
-                        ra, rb = _root(parent, v), _root(parent, u)
-                        if ra != rb:
-                            parent[max(ra, rb)] = min(ra, rb)
-    return _component_ids(parent)
+                        uf.union(parent, v, u)
+    return uf.component_ids(parent)
 
 
 @njit(cache=True, nogil=True)
@@ -608,10 +583,8 @@ def _lists_components(start, nbr):
         for j in range(start[v], start[v + 1]):
             u = nbr[j]
             if u > v:
-                ra, rb = _root(parent, v), _root(parent, u)
-                if ra != rb:
-                    parent[max(ra, rb)] = min(ra, rb)
-    return _component_ids(parent)
+                uf.union(parent, v, u)
+    return uf.component_ids(parent)
 
 
 #: grids with more voxels than this use the merge walk for their 3x3x3 neighbourhoods

@@ -342,3 +342,26 @@ def test_relabel_is_lookup(seed, rows, cols, n):
     got = relabel(seg, lut)
     assert got.dtype == lut.dtype and got.shape == seg.shape
     np.testing.assert_array_equal(got, lut[seg])
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(1, 60), st.integers(0, 80))
+def test_union_find_components_are_the_graphs(seed, n, m):
+    """Every edge's ends share a component id, ids count up in the order of each component's
+    first node, and two nodes share an id only when a path of edges joins them."""
+    from prc_slam import unionfind as uf
+
+    rng = np.random.default_rng(seed)
+    a, b = rng.integers(0, n, m), rng.integers(0, n, m)
+    parent = np.arange(n)
+    for x, y in zip(a, b, strict=True):
+        uf.union(parent, x, y)
+    comp = uf.component_ids(parent)
+    assert (comp[a] == comp[b]).all()
+    first = np.unique(comp, return_index=True)[1]
+    assert (np.diff(first) > 0).all() and comp[0] == 0
+    reach = np.eye(n, dtype=bool)
+    reach[a, b] = reach[b, a] = True
+    for _ in range(int(np.ceil(np.log2(n))) + 1):  # transitive closure by squaring
+        reach = (reach.astype(np.int64) @ reach.astype(np.int64)) > 0
+    np.testing.assert_array_equal(comp[:, None] == comp[None, :], reach)

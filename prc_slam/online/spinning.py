@@ -78,6 +78,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from prc_slam import unionfind as uf
 from prc_slam.online.car import oriented_boxes_of
 from prc_slam.online.coarse import elevation_rows
 from prc_slam.scan import Scan, SpinningSensor
@@ -126,25 +127,6 @@ class SpinningCarParams:
 
 
 @njit(cache=True, nogil=True)
-def _find(parent, a):
-    while parent[a] != a:
-        parent[a] = parent[parent[a]]
-        a = parent[a]
-    return a
-
-
-@njit(cache=True, nogil=True)
-def _union(parent, a, b):
-    ra = _find(parent, a)
-    rb = _find(parent, b)
-    if ra != rb:
-        if ra < rb:
-            parent[rb] = ra
-        else:
-            parent[ra] = rb
-
-
-@njit(cache=True, nogil=True)
 def relabel(seg, lut):
     """``lut[seg]`` for an image of ids (what numpy's indexing gives, without converting every
     id to a pointer-sized index first)."""
@@ -162,17 +144,8 @@ def graph_components(n_nodes, a, b):
     node (as ``scipy.sparse.csgraph.connected_components`` numbers them)."""
     parent = np.arange(n_nodes)
     for i in range(a.shape[0]):
-        _union(parent, a[i], b[i])
-    label = np.full(n_nodes, -1, np.int64)
-    comp = np.empty(n_nodes, np.int64)
-    k = 0
-    for v in range(n_nodes):
-        root = _find(parent, v)
-        if label[root] < 0:
-            label[root] = k
-            k += 1
-        comp[v] = label[root]
-    return comp
+        uf.union(parent, a[i], b[i])
+    return uf.component_ids(parent)
 
 
 @njit(cache=True, nogil=True)
@@ -211,7 +184,7 @@ def segment_candidates(
                 if cand[r, c1]:
                     g = max(min_gate, min(max_gate, gate_factor * rng[r, c] * ring_step * s))
                     if _d2(xyz, r, c, r, c1) <= g * g:
-                        _union(parent, r * C + c + 1, r * C + c1 + 1)
+                        uf.union(parent, r * C + c + 1, r * C + c1 + 1)
                 break
             # next return up the column, and up its two neighbouring columns
             for dc in range(-diagonal, diagonal + 1):
@@ -225,7 +198,7 @@ def segment_candidates(
                     if cand[r1, c2]:
                         g = max(min_gate, min(max_gate, gate_factor * rng[r, c] * (alt[r1] - alt[r])))
                         if _d2(xyz, r, c, r1, c2) <= g * g:
-                            _union(parent, r * C + c + 1, r1 * C + c2 + 1)
+                            uf.union(parent, r * C + c + 1, r1 * C + c2 + 1)
                     break
     seg = np.zeros((R, C), np.int32)
     root_id = np.zeros(R * C + 1, np.int32)
@@ -233,7 +206,7 @@ def segment_candidates(
     for r in range(R):
         for c in range(C):
             if cand[r, c]:
-                root = _find(parent, r * C + c + 1)
+                root = uf.find(parent, r * C + c + 1)
                 if root_id[root] == 0:
                     n += 1
                     root_id[root] = n
