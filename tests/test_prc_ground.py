@@ -242,3 +242,24 @@ def test_threaded_block_equals_serial():
         assert np.array_equal(getattr(a, k), getattr(b, k)), k
     assert a.ground is not None and np.array_equal(a.ground.ground, b.ground.ground)
     assert (a.labels == L.GROUND).any() and (a.labels == L.BUILDING).any()
+
+
+def test_thread_use_pauses_after_a_step_that_waited_for_a_core():
+    """A watched step whose wall time is well above its CPU time (here: asleep) makes the next
+    ``pause`` steps serial, then the threads are tried again (no timing of computing steps is
+    asserted: a loaded machine may deschedule them)."""
+    import time
+
+    from prc_slam.prc.algorithm import THREADED_SLOTS, ThreadUse
+
+    numba = pytest.importorskip("numba")
+    if numba.get_num_threads() < 2:
+        pytest.skip("numba may use one thread only: PRC never threads")
+    tu = ThreadUse(pause=3)
+    assert not tu.use(THREADED_SLOTS - 1)
+    assert tu.use(THREADED_SLOTS)
+    assert tu.watched(lambda n: sum(range(n)))(2000) == sum(range(2000))  # returns the step's result
+    tu.serial_left, tu.waited = 0, 0
+    tu.watched(time.sleep)(0.02)
+    assert tu.waited == 1
+    assert [tu.use(THREADED_SLOTS) for _ in range(4)] == [False, False, False, True]

@@ -20,7 +20,10 @@ adaptive thresholds (our addition, see :func:`support_thresholds`).
 from __future__ import annotations
 
 import logging
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numba
 import numpy as np
@@ -41,6 +44,8 @@ from prc_slam.scan import Scan, SensorModel, SpinningSensor
 from prc_slam.threads import in_threads, side_by_side
 
 log = logging.getLogger("prc_slam.prc")
+
+T = TypeVar("T")
 
 #: blocks of at least this many slots run their support rows and the column ground's first steps
 #: on the numba threads (``NUMBA_NUM_THREADS``; 1: all serial), beside one another
@@ -190,11 +195,7 @@ def support_and_background(
         second,
     )
     rows, cols = ranges.shape
-    if (
-        numba.get_num_threads() < 2
-        or rows * cols < THREADED_SLOTS
-        or cols <= 2 * max(config.in_slice_reach, config.in_slice_half) + 1
-    ):
+    if cols <= 2 * max(config.in_slice_reach, config.in_slice_half) + 1 or not THREADS.use(ranges.size):
         return kernels.support_and_gradient(ranges, xi_s, xi_p, *args)
     # row chunks on the numba threads (plain threads over the serial kernel; same result)
     pr, pt = kernels._padded(ranges, xi_s, wrap)
@@ -203,8 +204,51 @@ def support_and_background(
     def work(lo: int, hi: int) -> None:
         kernels.support_rows(ranges, pr, pt, xi_s, xi_p, *args, *out, lo, hi)
 
-    in_threads(work, rows, min_chunk=8)
+    in_threads(THREADS.watched(work), rows, min_chunk=8)
     return out
+
+
+class ThreadUse:
+    """Whether a block's steps run on the numba threads (``numba.get_num_threads() >= 2``, blocks
+    of at least :data:`THREADED_SLOTS` slots): row chunks of the support, and the column ground
+    beside the segmentation. The results are the same either way; the time is not. On a free core
+    the threads save a quarter of a KITTI sweep's time; when another process keeps the other
+    cores busy, a step waiting for a thread that is off its core costs more than it saves. So
+    every threaded step is watched: one that took much longer than its CPU time (its thread
+    waited for a core) makes the next ``pause`` steps (three a block) run serially, after which the threads are
+    tried again."""
+
+    def __init__(self, pause: int = 60, slack: float = 1.5, grace_s: float = 3e-4) -> None:
+        self.pause, self.slack, self.grace_s = pause, slack, grace_s
+        self.serial_left = 0
+        self.waited = 0  # threaded steps that waited for a core (for reports)
+
+    def use(self, slots: int) -> bool:
+        if slots < THREADED_SLOTS or numba.get_num_threads() < 2:
+            return False
+        if self.serial_left > 0:
+            self.serial_left -= 1
+            return False
+        return True
+
+    def watched(self, step: Callable[..., T]) -> Callable[..., T]:
+        """``step`` timed on its thread: wall time well above CPU time pauses the threads."""
+
+        def run(*a: object) -> T:
+            w0, c0 = time.perf_counter(), time.thread_time()
+            try:
+                return step(*a)
+            finally:
+                wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
+                if wall > self.slack * cpu + self.grace_s:
+                    self.waited += 1
+                    self.serial_left = self.pause
+
+        return run
+
+
+#: the process-wide :class:`ThreadUse` of :func:`prc_block`
+THREADS = ThreadUse()
 
 
 def supported_mask(
@@ -308,8 +352,8 @@ def prc_block(
             seeded = seed_in_frame(xyz, valid, config, frame[0], frame[2], frame[3], ranges=rays_ranges)
             return frame, seeded, seed_cell_heights(seeded[0], seeded[1], seeded[2], config)
 
-        if numba.get_num_threads() >= 2 and ranges.size >= THREADED_SLOTS:
-            (seg, head), _ = side_by_side(segmentation, ground_head)
+        if THREADS.use(ranges.size):
+            (seg, head), _ = side_by_side(THREADS.watched(segmentation), THREADS.watched(ground_head))
         else:
             seg, head = segmentation(), ground_head()
     else:
@@ -344,8 +388,10 @@ def prc_block(
                 n_ids=int(max(glob.max(initial=0), v_offset + nv)) + 1, seeded=seeded, height=height, seg_lut=glob,
             )  # fmt: skip
 
-        if numba.get_num_threads() >= 2 and ranges.size >= THREADED_SLOTS:
-            ((segments, _nonsmooth, out), ground_result), _ = side_by_side(codes, ground_tail)
+        if THREADS.use(ranges.size):
+            ((segments, _nonsmooth, out), ground_result), _ = side_by_side(
+                THREADS.watched(codes), THREADS.watched(ground_tail)
+            )
         else:
             (segments, _nonsmooth, out), ground_result = codes(), ground_tail()
         np.copyto(out, np.uint8(L.GROUND), where=ground_result.ground)
