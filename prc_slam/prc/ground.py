@@ -333,23 +333,20 @@ def levelled_seed(rays, ranges, scaled, valid, rot, order, z_ref, start, tan_slo
             z_r[c] = zz if vr[c] else np.float32(0.0)
             rho_r[c] = hh if vr[c] else np.float32(0.0)
         seed_r = seed[r]
-        for c in range(C):
-            if not vr[c]:
-                continue
-            if not have[c]:
-                if abs(z_r[c] - z_ref) < start:
-                    have[c] = True
-                    rho_g[c] = rho_r[c]
-                    z_g[c] = z_r[c]
-                    seed_r[c] = True
-                    n_seed += 1
-                continue
-            d = rho_r[c] - rho_g[c]
-            if d > 0.0 and abs(z_r[c] - z_g[c]) <= tan_slope * d + step:
-                seed_r[c] = True
-                n_seed += 1
-                rho_g[c] = rho_r[c]
-                z_g[c] = z_r[c]
+        for c in range(C):  # column_seed's walk, one step for every column, without branches
+            v = vr[c]
+            hv = have[c]
+            zc = z_r[c]
+            rc = rho_r[c]
+            first = v & (not hv) & (abs(zc - z_ref) < start)
+            d = rc - rho_g[c]
+            more = v & hv & (d > 0.0) & (abs(zc - z_g[c]) <= tan_slope * d + step)
+            sd = first | more
+            seed_r[c] = sd
+            have[c] = hv | first
+            rho_g[c] = rc if sd else rho_g[c]
+            z_g[c] = zc if sd else z_g[c]
+            n_seed += sd
     return rho, z, seed, n_seed
 
 
