@@ -255,11 +255,11 @@ def test_thread_use_pauses_after_a_step_that_waited_for_a_core():
     numba = pytest.importorskip("numba")
     if numba.get_num_threads() < 2:
         pytest.skip("numba may use one thread only: PRC never threads")
-    tu = ThreadUse(pause=3)
+    tu = ThreadUse(pause_min=3, pause_max=6)
     assert not tu.use(THREADED_SLOTS - 1)
     assert tu.use(THREADED_SLOTS)
     assert tu.watched(lambda n: sum(range(n)))(2000) == sum(range(2000))  # returns the step's result
-    tu.serial_left, tu.waited = 0, 0
+    tu.serial_left, tu.waited, tu.pause = 0, 0, 3
     tu.watched(time.sleep)(0.02)
-    assert tu.waited == 1
+    assert tu.waited == 1 and tu.pause == 6  # the next pause doubles
     assert [tu.use(THREADED_SLOTS) for _ in range(4)] == [False, False, False, True]

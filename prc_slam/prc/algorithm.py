@@ -211,15 +211,17 @@ def support_and_background(
 class ThreadUse:
     """Whether a block's steps run on the numba threads (``numba.get_num_threads() >= 2``, blocks
     of at least :data:`THREADED_SLOTS` slots): row chunks of the support, and the column ground
-    beside the segmentation. The results are the same either way; the time is not. On a free core
-    the threads save a quarter of a KITTI sweep's time; when another process keeps the other
-    cores busy, a step waiting for a thread that is off its core costs more than it saves. So
-    every threaded step is watched: one that took much longer than its CPU time (its thread
-    waited for a core) makes the next ``pause`` steps (three a block) run serially, after which the threads are
-    tried again."""
+    beside the segmentation (three threaded steps a block). The results are the same either way;
+    the time is not: on a free core the threads save about a third of a KITTI sweep's PRC time,
+    but when another process keeps the other cores busy a step waiting for a thread that is off
+    its core costs more than it saves. So every threaded step is watched: one whose wall time
+    exceeds ``slack`` times its CPU time plus ``grace_s`` (its thread waited for a core) makes
+    the next ``pause`` steps run serially; the pause doubles (up to ``pause_max``) while steps
+    keep waiting, and shrinks by one with every step that did not wait."""
 
-    def __init__(self, pause: int = 60, slack: float = 1.5, grace_s: float = 3e-4) -> None:
-        self.pause, self.slack, self.grace_s = pause, slack, grace_s
+    def __init__(self, pause_min: int = 6, pause_max: int = 96, slack: float = 1.5, grace_s: float = 1e-3) -> None:
+        self.pause_min, self.pause_max, self.slack, self.grace_s = pause_min, pause_max, slack, grace_s
+        self.pause = pause_min
         self.serial_left = 0
         self.waited = 0  # threaded steps that waited for a core (for reports)
 
@@ -243,6 +245,9 @@ class ThreadUse:
                 if wall > self.slack * cpu + self.grace_s:
                     self.waited += 1
                     self.serial_left = self.pause
+                    self.pause = min(2 * self.pause, self.pause_max)
+                else:
+                    self.pause = max(self.pause - 1, self.pause_min)
 
         return run
 
