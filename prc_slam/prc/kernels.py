@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from prc_slam import unionfind as uf
+
 
 @njit(cache=True, nogil=True)
 def support_counts(ranges, xi_s, xi_p, half_in, wrap, reach=0):
@@ -512,28 +514,6 @@ def _gradient_break(a, ri, b, alpha, d_c, literal):
 
 
 @njit(cache=True, nogil=True)
-def _find(parent, x):
-    root = x
-    while parent[root] != root:
-        root = parent[root]
-    while parent[x] != root:
-        nxt = parent[x]
-        parent[x] = root
-        x = nxt
-    return root
-
-
-@njit(cache=True, nogil=True)
-def _union(parent, a, b):
-    ra = _find(parent, a)
-    rb = _find(parent, b)
-    if ra < rb:
-        parent[rb] = ra
-    elif rb < ra:
-        parent[ra] = rb
-
-
-@njit(cache=True, nogil=True)
 def connected_components(mask, wrap):
     """4-connected components of a binary image (Section II-D), by union-find over the runs
     of each row: a run joins the runs of the row above that share a column with it.
@@ -578,7 +558,7 @@ def connected_components(mask, wrap):
             elif end[i] <= start[j]:
                 i += 1
             else:
-                _union(parent, i, j)
+                uf.union(parent, i, j)
                 if end[j] < end[i]:
                     j += 1
                 else:
@@ -587,13 +567,13 @@ def connected_components(mask, wrap):
         for r in range(R):
             a, b = first[r], first[r + 1]
             if b > a and start[a] == 0 and end[b - 1] == C:
-                _union(parent, a, b - 1)
+                uf.union(parent, a, b - 1)
     final = np.zeros(nr, np.int32)
     lab = np.zeros((R, C), np.int32)
     k = 0
     for r in range(R):
         for q in range(first[r], first[r + 1]):
-            root = _find(parent, q)
+            root = uf.find(parent, q)
             if final[root] == 0:
                 k += 1
                 final[root] = k
@@ -634,13 +614,13 @@ def connected_components_within(mask, xyz, max_dist, wrap):
             elif up != 0 and left != 0:
                 lab[r, c] = min(up, left)
                 if up != left:
-                    _union(parent, up, left)
+                    uf.union(parent, up, left)
             else:
                 lab[r, c] = up if up != 0 else left
     if wrap and C > 1:
         for r in range(R):
             if lab[r, 0] != 0 and lab[r, C - 1] != 0 and _near(xyz, r, 0, r, C - 1, max_dist):
-                _union(parent, lab[r, 0], lab[r, C - 1])
+                uf.union(parent, lab[r, 0], lab[r, C - 1])
     final = np.zeros(n + 1, np.int32)
     k = 0
     for r in range(R):
@@ -648,7 +628,7 @@ def connected_components_within(mask, xyz, max_dist, wrap):
             v = lab[r, c]
             if v == 0:
                 continue
-            root = _find(parent, v)
+            root = uf.find(parent, v)
             if final[root] == 0:
                 k += 1
                 final[root] = k
