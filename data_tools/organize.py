@@ -50,6 +50,7 @@ from numba import njit
 
 from data_tools.errors import DataError
 from prc_slam.scan import Scan, SpinningSensor
+from prc_slam.threads import in_threads
 
 log = logging.getLogger("prc_slam.organize")
 
@@ -738,10 +739,11 @@ def estimate_beam_offset(xyz: np.ndarray, max_offset: float = 0.1, samples: int 
     max_offset``) that makes the elevation histogram sharpest (largest sum of squared counts).
     0 for decoders whose points come from one origin.
     """
-    pts = np.asarray(xyz, dtype=np.float64)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    if len(pts) > samples:
-        pts = pts[np.random.default_rng(0).choice(len(pts), samples, replace=False)]
+    xyz = np.asarray(xyz)
+    idx = np.flatnonzero(np.isfinite(xyz).all(axis=1))
+    if len(idx) > samples:
+        idx = idx[np.random.default_rng(0).choice(len(idx), samples, replace=False)]
+    pts = xyz[idx].astype(np.float64)  # the sampled finite points only
     rho = np.hypot(pts[:, 0], pts[:, 1])
     keep = rho > 2 * max_offset
     z, rho = pts[keep, 2], rho[keep]
@@ -750,17 +752,26 @@ def estimate_beam_offset(xyz: np.ndarray, max_offset: float = 0.1, samples: int 
 
     kernel = np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2)
 
-    def sharpness(n: float) -> float:  # histogram at 0.005 deg, smoothed over sigma 0.01 deg
-        return _elevation_sharpness(z, rho, n, kernel)
+    def sharpness(offsets: np.ndarray) -> np.ndarray:  # histogram at 0.005 deg, smoothed over sigma 0.01 deg
+        out = np.empty(len(offsets))
+        in_threads(lambda lo, hi: _sharpness_of(z, rho, offsets, kernel, out, lo, hi), len(offsets), min_chunk=1)
+        return out
 
     coarse = np.arange(-max_offset, max_offset + 1e-9, 0.005)
-    scores = [sharpness(n) for n in coarse]
+    scores = sharpness(coarse)
     n0 = float(coarse[int(np.argmax(scores))])
     fine = np.arange(n0 - 0.005, n0 + 0.0051, 0.001)
-    scores_f = [sharpness(n) for n in fine]
-    best = float(fine[int(np.argmax(scores_f))])
+    scores_f = sharpness(np.append(fine, 0.0))
+    best = float(fine[int(np.argmax(scores_f[:-1]))])
     # only a clear gain over no offset counts
-    return best if max(scores_f) > 1.05 * sharpness(0.0) else 0.0
+    return best if scores_f[:-1].max() > 1.05 * scores_f[-1] else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _sharpness_of(z, rho, offsets, kernel, out, lo, hi):
+    """:func:`_elevation_sharpness` for the offsets ``lo..hi - 1`` into ``out``."""
+    for i in range(lo, hi):
+        out[i] = _elevation_sharpness(z, rho, offsets[i], kernel)
 
 
 @njit(cache=True, nogil=True)

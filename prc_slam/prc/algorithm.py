@@ -615,10 +615,12 @@ def warm_up() -> None:
         config = PRCConfig(mode=mode, k=2)
         prc_block(tiny, config, wrap=True, state=PRCState())
         prc_block(tiny, config.model_copy(update={"adaptive": True}), sensor=_WarmSensor(), wrap=False)
-    # a small spinning sweep over flat ground with a wall: the column ground's kernels too
-    sensor = SpinningSensor.create(np.radians(np.linspace(2.0, -24.0, 16)), 64)
+    # a spinning sweep over flat ground with a wall: the column ground's kernels too, and (as
+    # large as THREADED_SLOTS) the threaded steps' kernels
+    cols = -(-THREADED_SLOTS // 32)
+    sensor = SpinningSensor.create(np.radians(np.linspace(2.0, -24.0, 32)), cols)
     down = np.maximum(-np.sin(sensor.altitude), 1e-3)[:, None]
-    ranges = np.minimum(1.7 / down, 12.0) * np.ones((1, 64))
+    ranges = np.minimum(1.7 / down, 12.0) * np.ones((1, cols))
     prc_block(ranges.astype(np.float32), PRCConfig.preset("multibeam"), sensor=sensor, wrap=True,
               ground_state=GroundState())  # fmt: skip
 
