@@ -8,7 +8,8 @@ are free: chunks of items (:func:`in_threads`: the online detectors' scan lines)
 threads as numba may use (``numba.get_num_threads()``, which ``NUMBA_NUM_THREADS`` sets; 1:
 everything in the calling thread, one after the other). The pieces must release the GIL
 (``nogil`` kernels, numpy) and write disjoint outputs; every result is computed as in a serial
-run. Steps run here call serial kernels only (numba's work-queue threading layer must not be
+run; :class:`ThreadUse` sends a caller's steps to the threads only while they do not wait for a
+core. Steps run here call serial kernels only (numba's work-queue threading layer must not be
 entered from two threads at once).
 """
 
@@ -18,7 +19,7 @@ import itertools
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 import numba
 
@@ -87,3 +88,52 @@ def side_by_side(*steps: Callable[[], Any]) -> tuple[list[Any], list[float]]:
     if errors:
         raise errors[0]
     return results, seconds
+
+
+T = TypeVar("T")
+
+
+class ThreadUse:
+    """Whether a caller's steps go to the threads of :func:`in_threads` / :func:`side_by_side`:
+    only with ``numba.get_num_threads() >= 2`` and at least ``min_items`` items, and not while
+    paused. The results are the same either way; the time is not: when another process keeps the
+    other cores busy, a step waiting for a thread that is off its core costs more than it saves.
+    So every threaded step is watched: one whose wall time exceeds ``slack`` times its CPU time
+    plus ``grace_s`` (its thread waited for a core) makes the next ``pause`` steps run serially;
+    the pause doubles (up to ``pause_max``) while steps keep waiting, and shrinks by one with
+    every step that did not wait."""
+
+    def __init__(
+        self, min_items: int, pause_min: int = 6, pause_max: int = 96, slack: float = 1.5, grace_s: float = 1e-3
+    ) -> None:
+        self.min_items = min_items
+        self.pause_min, self.pause_max, self.slack, self.grace_s = pause_min, pause_max, slack, grace_s
+        self.pause = pause_min
+        self.serial_left = 0
+        self.waited = 0  # threaded steps that waited for a core (for reports)
+
+    def use(self, items: int) -> bool:
+        if items < self.min_items or numba.get_num_threads() < 2:
+            return False
+        if self.serial_left > 0:
+            self.serial_left -= 1
+            return False
+        return True
+
+    def watched(self, step: Callable[..., T]) -> Callable[..., T]:
+        """``step`` timed on its thread: wall time well above CPU time pauses the threads."""
+
+        def run(*a: object) -> T:
+            w0, c0 = time.perf_counter(), time.thread_time()
+            try:
+                return step(*a)
+            finally:
+                wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
+                if wall > self.slack * cpu + self.grace_s:
+                    self.waited += 1
+                    self.serial_left = self.pause
+                    self.pause = min(2 * self.pause, self.pause_max)
+                else:
+                    self.pause = max(self.pause - 1, self.pause_min)
+
+        return run

@@ -250,12 +250,13 @@ def test_thread_use_pauses_after_a_step_that_waited_for_a_core():
     asserted: a loaded machine may deschedule them)."""
     import time
 
-    from prc_slam.prc.algorithm import THREADED_SLOTS, ThreadUse
+    from prc_slam.prc.algorithm import THREADED_SLOTS
+    from prc_slam.threads import ThreadUse
 
     numba = pytest.importorskip("numba")
     if numba.get_num_threads() < 2:
         pytest.skip("numba may use one thread only: PRC never threads")
-    tu = ThreadUse(pause_min=3, pause_max=6)
+    tu = ThreadUse(THREADED_SLOTS, pause_min=3, pause_max=6)
     assert not tu.use(THREADED_SLOTS - 1)
     assert tu.use(THREADED_SLOTS)
     assert tu.watched(lambda n: sum(range(n)))(2000) == sum(range(2000))  # returns the step's result

@@ -20,12 +20,8 @@ adaptive thresholds (our addition, see :func:`support_thresholds`).
 from __future__ import annotations
 
 import logging
-import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TypeVar
 
-import numba
 import numpy as np
 
 from prc_slam import labels as L
@@ -41,11 +37,9 @@ from prc_slam.prc.ground import (
     seed_in_frame,
 )
 from prc_slam.scan import Scan, SensorModel, SpinningSensor
-from prc_slam.threads import in_threads, side_by_side
+from prc_slam.threads import ThreadUse, in_threads, side_by_side
 
 log = logging.getLogger("prc_slam.prc")
-
-T = TypeVar("T")
 
 #: blocks of at least this many slots run their support rows and the column ground's first steps
 #: on the numba threads (``NUMBA_NUM_THREADS``; 1: all serial), beside one another
@@ -208,52 +202,10 @@ def support_and_background(
     return out
 
 
-class ThreadUse:
-    """Whether a block's steps run on the numba threads (``numba.get_num_threads() >= 2``, blocks
-    of at least :data:`THREADED_SLOTS` slots): row chunks of the support, and the column ground
-    beside the segmentation (three threaded steps a block). The results are the same either way;
-    the time is not: on a free core the threads save about a third of a KITTI sweep's PRC time,
-    but when another process keeps the other cores busy a step waiting for a thread that is off
-    its core costs more than it saves. So every threaded step is watched: one whose wall time
-    exceeds ``slack`` times its CPU time plus ``grace_s`` (its thread waited for a core) makes
-    the next ``pause`` steps run serially; the pause doubles (up to ``pause_max``) while steps
-    keep waiting, and shrinks by one with every step that did not wait."""
-
-    def __init__(self, pause_min: int = 6, pause_max: int = 96, slack: float = 1.5, grace_s: float = 1e-3) -> None:
-        self.pause_min, self.pause_max, self.slack, self.grace_s = pause_min, pause_max, slack, grace_s
-        self.pause = pause_min
-        self.serial_left = 0
-        self.waited = 0  # threaded steps that waited for a core (for reports)
-
-    def use(self, slots: int) -> bool:
-        if slots < THREADED_SLOTS or numba.get_num_threads() < 2:
-            return False
-        if self.serial_left > 0:
-            self.serial_left -= 1
-            return False
-        return True
-
-    def watched(self, step: Callable[..., T]) -> Callable[..., T]:
-        """``step`` timed on its thread: wall time well above CPU time pauses the threads."""
-
-        def run(*a: object) -> T:
-            w0, c0 = time.perf_counter(), time.thread_time()
-            try:
-                return step(*a)
-            finally:
-                wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
-                if wall > self.slack * cpu + self.grace_s:
-                    self.waited += 1
-                    self.serial_left = self.pause
-                    self.pause = min(2 * self.pause, self.pause_max)
-                else:
-                    self.pause = max(self.pause - 1, self.pause_min)
-
-        return run
-
-
-#: the process-wide :class:`ThreadUse` of :func:`prc_block`
-THREADS = ThreadUse()
+#: the process-wide :class:`~prc_slam.threads.ThreadUse` of :func:`prc_block`: row chunks of the
+#: support, and the column ground beside the segmentation (three threaded steps a block); on a free
+#: core they save about a third of a KITTI sweep's PRC time
+THREADS = ThreadUse(THREADED_SLOTS)
 
 
 def supported_mask(
