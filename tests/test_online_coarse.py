@@ -22,6 +22,17 @@ def stats(points):
     return K.line_statistics(xyz, np.ones(len(xyz), bool), np.arange(len(xyz)), np.zeros(3))
 
 
+def test_arccos_hand_computed():
+    """The vectorising arccos at the ends and the reduction's seams (exact values)."""
+    for c, deg in [(1.0, 0.0), (-1.0, 180.0), (0.0, 90.0)]:
+        assert np.degrees(K.arccos(c)) == deg
+    for c, deg in [(0.5, 60.0), (-0.5, 120.0), (np.sqrt(0.5), 45.0), (np.sqrt(3) / 2, 30.0), (-np.sqrt(3) / 2, 150.0)]:
+        assert np.degrees(K.arccos(c)) == pytest.approx(deg, abs=1e-13)
+    c = np.array([1.0, 0.5, -0.5, 0.0, -1.0, 0.25])
+    K.arccos_into(c, 5)  # the first five only
+    np.testing.assert_allclose(c, [0.0, 60.0, 120.0, 90.0, 180.0, 0.25], atol=1e-13)
+
+
 def test_signed_angles_hand_computed():
     _, sv, _ = stats([[1, 0, 0], [2, 0, 0], [3, 0, 0]])
     np.testing.assert_allclose(sv, [90, 90, 90])  # horizontal: D perpendicular to z

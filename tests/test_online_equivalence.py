@@ -78,6 +78,40 @@ def test_track_mode_is_mean_shift_from_its_start(seed, n):
     assert _track_mode(z, 0, start, 0.2) == start  # no samples: stays
 
 
+@SETTINGS
+@given(
+    st.one_of(
+        st.floats(-1.0, 1.0),
+        st.floats(0.49, 0.51),
+        st.floats(-0.51, -0.49),
+        st.floats(0.999999, 1.0),
+        st.floats(-1.0, -0.999999),
+    )
+)
+def test_arccos_within_one_ulp_of_numpy(c):
+    """:func:`K.arccos` (a polynomial that vectorises) against libm's ``acos``: within one
+    unit in the last place everywhere in [-1, 1], near the seams at +-1/2 and near +-1."""
+    ours, ref = K.arccos(c), np.arccos(c)
+    assert abs(ours - ref) <= np.spacing(ref)
+
+
+def test_arccos_coefficients_are_the_fit():
+    """The polynomial in the kernel is what ``scripts/fit_arccos.py`` fits, and the array form
+    stays within one ulp over a million uniform cosines."""
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "fit_arccos.py"
+    spec = importlib.util.spec_from_file_location("fit_arccos", script)
+    fit_arccos = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fit_arccos)
+    np.testing.assert_allclose(K.ARCCOS_G, fit_arccos.fit(), rtol=1e-9, atol=0)
+    c = np.random.default_rng(1).uniform(-1.0, 1.0, 1_000_000)
+    deg = c.copy()
+    K.arccos_into(deg, len(deg))
+    np.testing.assert_array_less(np.abs(deg - np.degrees(np.arccos(c))), 1.5 * np.spacing(180.0) + 1e-300)
+
+
 def line_statistics_reference(xyz, valid, line, origin, min_step=0.0, centred=False):
     """The definition of :func:`K.line_statistics`, one angle at a time with ``_angle_deg``."""
     pts = np.array([s for s in line if s >= 0 and valid[s]], np.int64)
@@ -304,7 +338,8 @@ def test_kernels_into_dirty_buffers_are_the_allocating_ones(seed, n):
     valid = rng.random(width) > 0.2
     line = rng.permutation(width)[: n + 2].astype(np.int64)
     pts, sv, phi = np.full(width, 7, np.int64), np.full(width, np.nan), np.full(width, np.nan)
-    m = K.line_statistics_into(xyz, valid, line, np.zeros(3), 0.0, False, pts, sv, phi)
+    work = np.full((2, width), np.nan)
+    m = K.line_statistics_into(xyz, valid, line, np.zeros(3), 0.0, False, pts, sv, phi, work)
     ref = K.line_statistics(xyz, valid, line, np.zeros(3))
     np.testing.assert_array_equal(pts[:m], ref[0])
     np.testing.assert_array_equal(sv[:m], ref[1])

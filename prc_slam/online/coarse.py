@@ -137,9 +137,10 @@ def _classify_lines(
     sv_b, phi_b = np.empty(width), np.empty(width)
     veg_b, tp_b, vert_b = np.empty(width, np.bool_), np.empty(width, np.bool_), np.empty(width, np.bool_)
     sd_b, rest_b = np.empty(width), np.empty(width)
+    work = np.empty((2, width))
     for li in range(lo, hi):  # scan lines are independent; each writes only its slots
         pts = ret_pts[li]
-        n = K.line_statistics_into(xyz, valid, lines[li], origin, min_step, centred, pts, sv_b, phi_b)
+        n = K.line_statistics_into(xyz, valid, lines[li], origin, min_step, centred, pts, sv_b, phi_b, work)
         ret_count[li] = n
         if n == 0:
             continue

@@ -9,31 +9,82 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+#: ``g(z)`` of :func:`arccos` (``asin(s) = s + s z g(z)``, ``z = s^2`` in ``[0, 1/4]``), lowest
+#: power first; fitted by ``scripts/fit_arccos.py``
+ARCCOS_G = (
+    0.16666666666666657, 0.07500000000020912, 0.044642857102371265, 0.03038194745732771,
+    0.02237204423740889, 0.01735533035745869, 0.013928767296575563, 0.011882537079030621,
+    0.007767330166783341, 0.016146609393178146, -0.010943884401817565, 0.028316208443389522,
+)  # fmt: skip
+_G0, _G1, _G2, _G3, _G4, _G5, _G6, _G7, _G8, _G9, _G10, _G11 = ARCCOS_G
+_PI_LO = 1.2246467991473532e-16  # pi - float(pi)
+_PIO2_LO = 6.123233995736766e-17  # pi / 2 - float(pi / 2)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def arccos(c):
+    """``arccos(c)`` for ``c`` in ``[-1, 1]``, within one unit in the last place of numpy's, and
+    branch-free so that loops over arrays of cosines vectorise (glibc's ``acos`` was a tenth of
+    the online detectors' time, one call per angle).
+
+    The classic reduction: ``arccos(c) = pi/2 - asin(c)`` for ``|c| <= 1/2``, else
+    ``2 asin(s)`` (``c > 0``) or ``pi - 2 asin(s)`` (``c < 0``) with ``s = sqrt((1 - |c|) / 2)``;
+    ``asin(s) = s + s z g(z)``, ``z = s^2 <= 1/4``, with ``g`` a degree-11 polynomial
+    (:data:`ARCCOS_G`), ``sqrt`` split in two halves (Veltkamp) so that ``2 asin(s)`` keeps its
+    last bits near ``c = 1``, and pi in two parts."""
+    a = abs(c)
+    big = a > 0.5
+    z = 0.5 * (1.0 - a) if big else a * a
+    s = np.sqrt(z) if big else a
+    q = _G11
+    q = q * z + _G10
+    q = q * z + _G9
+    q = q * z + _G8
+    q = q * z + _G7
+    q = q * z + _G6
+    q = q * z + _G5
+    q = q * z + _G4
+    q = q * z + _G3
+    q = q * z + _G2
+    q = q * z + _G1
+    q = q * z + _G0
+    r = s * (z * q)
+    if big:
+        t = s * 134217729.0  # 2^27 + 1
+        hi = t - (t - s)
+        p = hi + ((z - hi * hi) / (s + hi + 1e-300) + r)  # asin(s), z - hi^2 exact
+        return 2.0 * p if c > 0.0 else np.pi - (2.0 * p - _PI_LO)
+    p = s + r
+    return np.pi / 2 - (p - _PIO2_LO) if c >= 0.0 else np.pi / 2 + (p + _PIO2_LO)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def arccos_into(c, n):
+    """``c[:n] = degrees(arccos(c[:n]))`` in place (:func:`arccos`; a loop that vectorises)."""
+    for k in range(n):
+        c[k] = np.degrees(arccos(c[k]))
+
+
+@njit(cache=True, nogil=True)
+def _cos_of(dot, na, nb):
+    """The cosine of the angle between two vectors from their dot product and norms, in
+    ``[-1, 1]``; 1 (angle 0) when either is the zero vector."""
+    if na == 0.0 or nb == 0.0:
+        return 1.0
+    return min(1.0, max(-1.0, dot / (na * nb)))
+
 
 @njit(cache=True, nogil=True)
 def _angle_deg(a, b):
+    """The angle between ``a`` and ``b`` in degrees (0 when either is zero)."""
     na = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
     nb = np.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
-    if na == 0.0 or nb == 0.0:
-        return 0.0
-    c = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / (na * nb)
-    c = min(1.0, max(-1.0, c))
-    return np.degrees(np.arccos(c))
+    return np.degrees(arccos(_cos_of(a[0] * b[0] + a[1] * b[1] + a[2] * b[2], na, nb)))
 
 
 @njit(cache=True, nogil=True)
 def _norm(a0, a1, a2):
     return np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-
-
-@njit(cache=True, nogil=True)
-def _angle_of(dot, na, nb):
-    """:func:`_angle_deg` from the dot product and the two norms."""
-    if na == 0.0 or nb == 0.0:
-        return 0.0
-    c = dot / (na * nb)
-    c = min(1.0, max(-1.0, c))
-    return np.degrees(np.arccos(c))
 
 
 @njit(cache=True, nogil=True)
@@ -95,36 +146,44 @@ def line_statistics(xyz, valid, line, origin, min_step=0.0, centred=False):
     pts = np.empty(line.shape[0], np.int64)
     sv = np.empty(line.shape[0])
     phi_hat = np.empty(line.shape[0])
-    n = line_statistics_into(xyz, valid, line, origin, min_step, centred, pts, sv, phi_hat)
+    work = np.empty((2, line.shape[0]))
+    n = line_statistics_into(xyz, valid, line, origin, min_step, centred, pts, sv, phi_hat, work)
     return pts[:n], sv[:n], phi_hat[:n]
 
 
 @njit(cache=True, nogil=True)
-def line_statistics_into(xyz, valid, line, origin, min_step, centred, pts, sv, phi_hat):
+def line_statistics_into(xyz, valid, line, origin, min_step, centred, pts, sv, phi_hat, work):
     """:func:`line_statistics` written into ``pts, sv, phi_hat`` (each at least the line's
-    length: no allocation, for callers that reuse one set of buffers for many lines);
-    returns the number of returns ``n`` (the results are the first ``n`` entries)."""
+    length; ``work`` a float64 scratch of 2 such rows: no allocation, for callers that reuse one
+    set of buffers for many lines); returns the number of returns ``n`` (the results are the
+    first ``n`` entries)."""
     n = line_returns_into(line, valid, pts)
-    statistics_of_returns(xyz, pts, n, origin, min_step, centred, sv, phi_hat)
+    statistics_of_returns(xyz, pts, n, origin, min_step, centred, sv, phi_hat, work)
     return n
 
 
 @njit(cache=True, nogil=True)
-def statistics_of_returns(xyz, pts, n, origin, min_step, centred, sv, phi_hat):
+def statistics_of_returns(xyz, pts, n, origin, min_step, centred, sv, phi_hat, work):
     """:func:`line_statistics` of the returns ``xyz[pts[0]], ..., xyz[pts[n - 1]]`` (a line's
-    returns in order), written into ``sv[:n], phi_hat[:n]``. Callers that hold the returns'
-    coordinates in order pass them as ``xyz`` with ``pts = 0, 1, ...``."""
+    returns in order), written into ``sv[:n], phi_hat[:n]`` (``work``: float64 scratch, 2 rows
+    of at least ``n``). Callers that hold the returns' coordinates in order pass them as ``xyz``
+    with ``pts = 0, 1, ...``.
+
+    Three passes: the cosines of every step's three angles (``V_k``, the beam's turn, ``phi_k``),
+    then their arccos in loops that vectorise (:func:`arccos_into`), then the signs and the
+    running sum of the beam's turns."""
     if n < 2:
         for k in range(n):
             sv[k] = 0.0
             phi_hat[k] = 0.0
         return
+    turn, signs = work[0], work[1]
     p0 = p1 = p2 = 0.0  # D_{k-1}
     b0 = b1 = b2 = 0.0  # X_{k+1} - X_A
-    cum = 0.0
     n_ra = 0.0  # |X_k - X_A|: the previous step's |X_{k+1} - X_A|
     nxt = 1
     lo = 0
+    turn[0] = 1.0  # no turn before the first step
     for k in range(n - 1):
         a = k
         step = min_step
@@ -141,19 +200,25 @@ def statistics_of_returns(xyz, pts, n, origin, min_step, centred, sv, phi_hat):
         pb, pa, pk = pts[b], pts[a], pts[k + 1]
         d0, d1, d2 = xyz[pb, 0] - xyz[pa, 0], xyz[pb, 1] - xyz[pa, 1], xyz[pb, 2] - xyz[pa, 2]
         b0, b1, b2 = xyz[pk, 0] - origin[0], xyz[pk, 1] - origin[1], xyz[pk, 2] - origin[2]
-        # the angles of _angle_deg, each norm taken once (the same values, fewer square roots)
+        # the cosines of _angle_deg, each norm taken once (the same values, fewer square roots)
         n_d = _norm(d0, d1, d2)
         n_rb = _norm(b0, b1, b2)
-        v = _angle_of(d0 * 0.0 + d1 * 0.0 + d2 * 1.0, n_d, 1.0)  # with the z axis
-        sign = 1.0
-        if k > 0 and (d0 * p0 + d1 * p1 + d2 * p2) < 0.0:
-            sign = -1.0
-        sv[k] = sign * v
+        sv[k] = _cos_of(d0 * 0.0 + d1 * 0.0 + d2 * 1.0, n_d, 1.0)  # with the z axis
+        signs[k] = -1.0 if k > 0 and (d0 * p0 + d1 * p1 + d2 * p2) < 0.0 else 1.0
         if k > 0:
-            cum += _angle_of(ra0 * b0 + ra1 * b1 + ra2 * b2, n_ra, n_rb)  # beam X_k -> X_{k+1}
-        phi_hat[k] = _angle_of(d0 * b0 + d1 * b1 + d2 * b2, n_d, n_rb) + cum
+            turn[k] = _cos_of(ra0 * b0 + ra1 * b1 + ra2 * b2, n_ra, n_rb)  # beam X_k -> X_{k+1}
+        phi_hat[k] = _cos_of(d0 * b0 + d1 * b1 + d2 * b2, n_d, n_rb)
         n_ra = n_rb
         p0, p1, p2 = d0, d1, d2
+    arccos_into(sv, n - 1)
+    arccos_into(turn, n - 1)
+    arccos_into(phi_hat, n - 1)
+    cum = 0.0
+    for k in range(n - 1):
+        sv[k] *= signs[k]
+        if k > 0:
+            cum += turn[k]
+        phi_hat[k] += cum
     sv[n - 1] = sv[n - 2]
     phi_hat[n - 1] = phi_hat[n - 2]
 
