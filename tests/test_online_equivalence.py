@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from prc_slam.online import kernels as K
 from prc_slam.online.car import oriented_box, oriented_boxes_of
-from prc_slam.online.curb import group_medians, possible_curbs, region_stats
+from prc_slam.online.curb import _polylines, group_medians, possible_curbs, region_stats
 from prc_slam.online.ground import _lowest_mean
 from prc_slam.online.spinning import _heights, graph_components, relabel, segment_tops
 
@@ -400,3 +400,38 @@ def test_union_find_components_are_the_graphs(seed, n, m):
     for _ in range(int(np.ceil(np.log2(n))) + 1):  # transitive closure by squaring
         reach = (reach.astype(np.int64) @ reach.astype(np.int64)) > 0
     np.testing.assert_array_equal(comp[:, None] == comp[None, :], reach)
+
+
+def polylines_reference(regions, ok, line_index, xyz):
+    """Curb polylines by numpy (group by region and line with ``np.unique``, means by
+    ``np.bincount``): the definition :func:`prc_slam.online.curb.polyline_means` implements."""
+    flat = regions.ravel()
+    members = np.flatnonzero(flat)
+    members = members[ok[flat[members]]]
+    if not len(members):
+        return []
+    key = flat[members].astype(np.int64) * (1 << 20) + line_index[np.unravel_index(members, regions.shape)]
+    uniq, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
+    pts = xyz.reshape(-1, 3)[members].astype(np.float64)
+    mean = np.stack([np.bincount(inv, weights=pts[:, c]) for c in range(3)], axis=1) / counts[:, None]
+    cuts = np.flatnonzero(np.diff(uniq >> 20)) + 1
+    return [m.astype(np.float32) for m in np.split(mean, cuts)]
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(1, 12), st.integers(1, 40), st.booleans())
+def test_curb_polylines_are_their_definition(seed, rows, cols, by_column):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(0, 6))
+    regions = np.where(rng.random((rows, cols)) < 0.4, rng.integers(0, n + 1, (rows, cols)), 0).astype(np.int32)
+    ok = rng.random(n + 1) < 0.7
+    ok[0] = False
+    xyz = rng.normal(0, 10, (rows, cols, 3)).astype(rng.choice([np.float32, np.float64]))
+    index = np.arange(cols)[None, :] if by_column else np.arange(rows)[:, None]
+    line_index = np.broadcast_to(index, (rows, cols))
+    got = _polylines(regions, ok, line_index, xyz)
+    ref = polylines_reference(regions, ok, line_index, xyz)
+    assert len(got) == len(ref)
+    for g, r in zip(got, ref, strict=True):
+        assert g.dtype == np.float32
+        np.testing.assert_array_equal(g, r)

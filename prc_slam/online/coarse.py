@@ -97,13 +97,20 @@ def _column_lines(rows: int, cols: int, altitude: bytes) -> np.ndarray:
 def elevation_rows(altitude: np.ndarray) -> slice | np.ndarray:
     """Row index that puts a spinning sensor's rows in elevation order, lowest beam first: a
     slice (a view) when the rows already are in elevation order or in its reverse, as most
-    readers give them; else the stable argsort of ``altitude``."""
-    order = np.argsort(altitude, kind="stable")
+    readers give them; else the stable argsort of ``altitude`` (read-only; made once per
+    sensor layout)."""
+    return _elevation_rows(np.asarray(altitude, dtype=np.float64).tobytes())
+
+
+@functools.lru_cache(maxsize=16)
+def _elevation_rows(altitude: bytes) -> slice | np.ndarray:
+    order = np.argsort(np.frombuffer(altitude, dtype=np.float64), kind="stable")
     rows = len(order)
     if (order == np.arange(rows)).all():
         return slice(None)
     if (order == np.arange(rows)[::-1]).all():
         return slice(None, None, -1)
+    order.flags.writeable = False
     return order
 
 

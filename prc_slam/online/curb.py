@@ -253,20 +253,63 @@ def region_stats(regions, z, n, by_column):
 
 
 def _polylines(regions: np.ndarray, ok: np.ndarray, line_index: np.ndarray, xyz: np.ndarray) -> list[np.ndarray]:
-    """One polyline per accepted region: the mean point of each of its scan lines, in line order."""
-    flat = regions.ravel()
-    members = np.flatnonzero(flat)  # labelled slots in image order, then those of accepted regions
-    members = members[ok[flat[members]]]
-    if not len(members):
+    """One polyline per accepted region: the mean point of each of its scan lines, in line order
+    (float32 rows; regions in id order)."""
+    mean, owner = polyline_means(regions, ok, line_index, xyz.reshape(-1, 3))
+    if not len(owner):
         return []
-    r = flat[members].astype(np.int64)
-    key = r * (1 << 20) + line_index[np.unravel_index(members, regions.shape)]
-    uniq, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
-    pts = xyz.reshape(-1, 3)[members].astype(np.float64)
-    mean = np.stack([np.bincount(inv, weights=pts[:, c]) for c in range(3)], axis=1) / counts[:, None]
-    owner = uniq >> 20
-    cuts = np.flatnonzero(np.diff(owner)) + 1
-    return [m.astype(np.float32) for m in np.split(mean, cuts)]
+    return np.split(mean.astype(np.float32), np.flatnonzero(owner[1:] != owner[:-1]) + 1)
+
+
+@njit(cache=True, nogil=True)
+def polyline_means(regions, ok, line_index, xyz):
+    """The points of :func:`_polylines`: for every region ``k`` of ``regions`` (rows, cols) with
+    ``ok[k]`` and every scan line ``line_index[r, c]`` it touches, the mean of its slots' ``xyz``
+    (flat, rows * cols x 3), summed in image order. Returns ``(mean (m, 3), owner (m,))``
+    sorted by region, then line."""
+    R, C = regions.shape
+    m = 0
+    for r in range(R):
+        for c in range(C):
+            k = regions[r, c]
+            if k > 0 and ok[k]:
+                m += 1
+    key = np.empty(m, np.int64)
+    slot = np.empty(m, np.int64)
+    m = 0
+    for r in range(R):
+        for c in range(C):
+            k = regions[r, c]
+            if k > 0 and ok[k]:
+                key[m] = (np.int64(k) << 20) + line_index[r, c]
+                slot[m] = r * C + c
+                m += 1
+    order = np.argsort(key, kind="mergesort")  # stable: each line's slots stay in image order
+    groups = 0
+    for i in range(m):
+        if i == 0 or key[order[i]] != key[order[i - 1]]:
+            groups += 1
+    mean = np.zeros((groups, 3))
+    owner = np.empty(groups, np.int64)
+    g = -1
+    cnt = 0
+    for i in range(m):
+        j = order[i]
+        if i == 0 or key[j] != key[order[i - 1]]:
+            if g >= 0:
+                for d in range(3):
+                    mean[g, d] /= cnt
+            g += 1
+            owner[g] = key[j] >> 20
+            cnt = 0
+        s = slot[j]
+        for d in range(3):
+            mean[g, d] += np.float64(xyz[s, d])
+        cnt += 1
+    if g >= 0:
+        for d in range(3):
+            mean[g, d] /= cnt
+    return mean, owner
 
 
 def _line_index(scan: Scan) -> np.ndarray:

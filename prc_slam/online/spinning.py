@@ -919,6 +919,6 @@ def detect_curbs_spinning(
     mask = mask.reshape(rows, cols)
     regions = np.zeros(rows * cols, np.int32)
     regions[members] = grid_comp + 1
-    ok_r = np.r_[False, ok]
+    ok_r = np.concatenate(([False], ok))
     line_index = np.broadcast_to(np.arange(cols)[None, :], (rows, cols))
     return mask, _polylines(regions.reshape(rows, cols), ok_r, line_index, xyz.reshape(rows, cols, 3))
