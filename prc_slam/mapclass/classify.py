@@ -38,6 +38,7 @@ from prc_slam.mapclass.objects import (
     segment_voxels,
     under_crown,
 )
+from prc_slam.mapclass.order import spatial_order
 from prc_slam.threads import side_by_side
 from prc_slam.voxels import VoxelGrid
 
@@ -134,6 +135,9 @@ class MapClassConfig(_Params):
     )
     foliage_voxel: float = Field(0.5, gt=0, description="foliage: 'nearby' = the 3x3x3 voxels of this side (m)")
     small_segment_points: int = Field(200, ge=1, description="'small' adjacent segments (Sec. 4.3, 4.4)")
+    spatial_order: bool = Field(
+        True, description="points sorted along a Z-order curve first (speed; labels independent of the input order)"
+    )
     ground: GroundParams = Field(default_factory=GroundParams)
     building: BuildingParams = Field(default_factory=BuildingParams)
     vehicle: VehicleParams = Field(default_factory=VehicleParams)
@@ -215,8 +219,15 @@ def classify_map(points: np.ndarray, config: MapClassConfig | None = None) -> Ma
     n_bad = int(len(pts) - finite.sum())
     if n_bad:
         pts = np.compress(finite, pts, axis=0)
+    order = None
+    if cfg.spatial_order and len(pts) > 1:
+        order = spatial_order(pts)
+        pts = _take_rows(pts, order)
+        clock.lap("order")
     scale = density_scale(pts, cfg)
     lab, seg, density, vert = _classify_finite(pts, cfg, clock, scale)
+    if order is not None:
+        lab, seg, density, vert = _unpermute(order, lab, seg, density, vert)
     below = float(np.mean(density < scale.threshold)) if len(density) else 0.0
     messages = []
     if below > cfg.density_warn_share:
@@ -266,6 +277,20 @@ def _fill_inliers(density, threshold, points, idx, p):
             idx[m] = i
             p[m, 0], p[m, 1], p[m, 2] = points[i, 0], points[i, 1], points[i, 2]
             m += 1
+
+
+def _unpermute(order, *arrays):
+    """Arrays of the points ``order`` (a permutation) back in the points' order: ``out[order] = a``."""
+    outs = tuple(np.empty_like(a) for a in arrays)
+    _scatter4(order, *arrays, *outs)
+    return outs
+
+
+@njit(cache=True, nogil=True)
+def _scatter4(order, a, b, c, d, oa, ob, oc, od):
+    for k in range(order.shape[0]):
+        i = order[k]
+        oa[i], ob[i], oc[i], od[i] = a[k], b[k], c[k], d[k]
 
 
 def _voxel_segment_per_point(seg_v, voxel):
