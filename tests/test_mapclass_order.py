@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from prc_slam import labels as L
 from prc_slam.mapclass import MapClassConfig, classify_map
 from prc_slam.mapclass.classify import DensityWarning
-from prc_slam.mapclass.order import _morton_keys, _spread3, spatial_order
+from prc_slam.mapclass.order import _morton_keys, _spread3, is_local, spatial_order
 
 
 def test_morton_spread_hand_computed():
@@ -85,11 +85,14 @@ def test_shuffled_cloud_same_labels_point_for_point():
     pts = _scene(rng)
     pts[::997] = np.nan  # non-finite rows keep their place too
     perm = rng.permutation(len(pts))
+    always = MapClassConfig(spatial_order="always")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DensityWarning)
-        a = classify_map(pts)
-        b = classify_map(pts[perm])
-        unsorted = classify_map(pts, MapClassConfig(spatial_order=False))
+        a = classify_map(pts, always)
+        b = classify_map(pts[perm], always)
+        unsorted = classify_map(pts, MapClassConfig(spatial_order="never"))
+        auto = classify_map(pts)  # the scene is built row by row: local, not sorted
+        auto_shuffled = classify_map(pts[perm])  # not local: sorted
     np.testing.assert_array_equal(b.labels, a.labels[perm])
     np.testing.assert_array_equal(b.segment, a.segment[perm])
     np.testing.assert_array_equal(b.density, a.density[perm])
@@ -100,3 +103,16 @@ def test_shuffled_cloud_same_labels_point_for_point():
     np.testing.assert_array_equal(a.density, unsorted.density)
     np.testing.assert_array_equal(a.labels, unsorted.labels)
     assert "order" in a.seconds and "order" not in unsorted.seconds
+    assert "order" not in auto.seconds and "order" in auto_shuffled.seconds
+    np.testing.assert_array_equal(auto.labels, unsorted.labels)
+    np.testing.assert_array_equal(auto_shuffled.labels, b.labels)
+
+
+def test_is_local_hand_computed():
+    line = np.column_stack([np.arange(100) * 0.5, np.zeros(100), np.zeros(100)])  # steps of 0.5 m
+    assert is_local(line, 1.0) and not is_local(line, 0.5)  # shorter than the step, strictly
+    jumpy = line.copy()
+    jumpy[::5, 0] += 100.0  # 2 steps in 5 long (into and out of each moved point)
+    assert not is_local(jumpy, 1.0) and is_local(jumpy, 1.0, share=0.6)
+    assert is_local(np.zeros((1, 3)), 1.0) and is_local(np.zeros((0, 3)), 1.0)
+    assert not is_local(np.array([[0.0, 0, 0], [np.nan, 0, 0]]), 1.0)  # a non-finite step is long

@@ -38,7 +38,7 @@ from prc_slam.mapclass.objects import (
     segment_voxels,
     under_crown,
 )
-from prc_slam.mapclass.order import spatial_order
+from prc_slam.mapclass.order import is_local, spatial_order
 from prc_slam.threads import side_by_side
 from prc_slam.voxels import VoxelGrid
 
@@ -135,8 +135,13 @@ class MapClassConfig(_Params):
     )
     foliage_voxel: float = Field(0.5, gt=0, description="foliage: 'nearby' = the 3x3x3 voxels of this side (m)")
     small_segment_points: int = Field(200, ge=1, description="'small' adjacent segments (Sec. 4.3, 4.4)")
-    spatial_order: bool = Field(
-        True, description="points sorted along a Z-order curve first (speed; labels independent of the input order)"
+    spatial_order: Literal["auto", "always", "never"] = Field(
+        "auto",
+        description="points sorted along a Z-order curve first (speed; 'always': labels independent of the input "
+        "order); 'auto': unless the input order is already local (mapclass.order.is_local)",
+    )
+    order_step: float = Field(
+        10.0, gt=0, description="'auto': local when 90 % of the steps between consecutive points are this short (m)"
     )
     ground: GroundParams = Field(default_factory=GroundParams)
     building: BuildingParams = Field(default_factory=BuildingParams)
@@ -220,7 +225,9 @@ def classify_map(points: np.ndarray, config: MapClassConfig | None = None) -> Ma
     if n_bad:
         pts = np.compress(finite, pts, axis=0)
     order = None
-    if cfg.spatial_order and len(pts) > 1:
+    if len(pts) > 1 and (
+        cfg.spatial_order == "always" or (cfg.spatial_order == "auto" and not is_local(pts, cfg.order_step))
+    ):
         order = spatial_order(pts)
         pts = _take_rows(pts, order)
         clock.lap("order")
