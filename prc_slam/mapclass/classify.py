@@ -437,18 +437,21 @@ def _classify_finite(
         _scatter(segment, idx, seg)
         return seg, tiny
 
-    def ground_mask() -> np.ndarray:  # Sec. 4.1 ground (needs nothing of the segmentation)
+    def ground_mask() -> tuple[np.ndarray, np.ndarray, float]:
+        """Sec. 4.1 ground (needs nothing of the segmentation), then the Sec. 3.4 verticality
+        on the density voxels (inliers only; needs the normals alone) and its seconds."""
         g = cfg.ground
-        return detect_ground(
+        mask = detect_ground(
             p, scale.ground_cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance
         )
+        t = time.perf_counter()
+        v = M.verticality(normals, dgrid.voxel, dgrid.n_voxels, normal_of, idx)
+        _scatter(vert, idx, v)
+        return mask, v, time.perf_counter() - t
 
-    ((seg, tiny), ground), (t_seg, t_ground) = side_by_side(segmentation, ground_mask)
-    clock.record({"segmentation": t_seg})
-    # Sec. 3.4 verticality on the density voxels (inliers only)
-    v = M.verticality(normals, dgrid.voxel, dgrid.n_voxels, normal_of, idx)
-    _scatter(vert, idx, v)
-    clock.lap("verticality")
+    ((seg, tiny), (ground, v, t_vert)), (t_seg, t_ground) = side_by_side(segmentation, ground_mask)
+    t_ground -= t_vert
+    clock.record({"segmentation": t_seg, "verticality": t_vert})
     t = time.perf_counter()
     ground_pts, idx, p, seg, v, tiny = _split_ground(ground, labels, L.GROUND, idx, p, seg, v, tiny)
     scene = p

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from prc_slam.threads import side_by_side
 from prc_slam.voxels import VoxelGrid, find, group_members, radix_passes
 
 
@@ -126,6 +127,45 @@ def _normals_from_sums(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _closed_form3(a00, a11, a22, a01, a02, a12):
+    """Eigenvalues (ascending) of a symmetric 3x3 matrix in closed form (Smith 1961: the roots
+    of the characteristic cubic by the trigonometric formula) and the eigenvector of the
+    smallest, as the longest cross product of two rows of ``A - w0 I`` (unit, sign free). Five
+    times faster than the Jacobi sweeps; eigenvector error ~ eps |A| / gap. ``ok`` False (the
+    caller takes :func:`_jacobi3`) for a diagonal matrix or when the two smallest eigenvalues are
+    within ~1e-6 |A| of each other (the cross products vanish and lose their accuracy)."""
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    if p1 == 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    q = (a00 + a11 + a22) / 3.0
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p = np.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1) / 6.0)
+    det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
+    r = det / (2.0 * p * p * p)
+    r = min(1.0, max(-1.0, r))
+    phi = np.arccos(r) / 3.0
+    w2 = q + 2.0 * p * np.cos(phi)
+    w0 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    w1 = 3.0 * q - w0 - w2
+    r00, r11, r22 = a00 - w0, a11 - w0, a22 - w0
+    # rows (r00, a01, a02), (a01, r11, a12), (a02, a12, r22)
+    x0, y0, z0 = a01 * a12 - a02 * r11, a02 * a01 - r00 * a12, r00 * r11 - a01 * a01
+    x1, y1, z1 = a01 * r22 - a02 * a12, a02 * a02 - r00 * r22, r00 * a12 - a01 * a02
+    x2, y2, z2 = r11 * r22 - a12 * a12, a12 * a02 - a01 * r22, a01 * a12 - r11 * a02
+    d0, d1, d2 = x0 * x0 + y0 * y0 + z0 * z0, x1 * x1 + y1 * y1 + z1 * z1, x2 * x2 + y2 * y2 + z2 * z2
+    best = max(d0, d1, d2)
+    scale = p * p
+    if not best > 1e-12 * scale * scale:  # (1e-6 p^2)^2; NaN too
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    inv = 1.0 / np.sqrt(best)
+    if d0 == best:
+        return True, w0, w1, w2, x0 * inv, y0 * inv, z0 * inv
+    if d1 == best:
+        return True, w0, w1, w2, x1 * inv, y1 * inv, z1 * inv
+    return True, w0, w1, w2, x2 * inv, y2 * inv, z2 * inv
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _normal_of(c, s1, s2, s3, s4, s5, s6, s7, s8, s9):
     """Normal and curvature from one (count, Σx, Σxxᵀ) row; ``ok`` False where fewer than 3
     points or a degenerate (line-like) spread."""
@@ -138,18 +178,20 @@ def _normal_of(c, s1, s2, s3, s4, s5, s6, s7, s8, s9):
     c11 = s7 / c - my * my
     c12 = s8 / c - my * mz
     c22 = s9 / c - mz * mz
-    r = _jacobi3(c00, c11, c22, c01, c02, c12)
-    if r[12]:
-        i0, i1, i2 = _ascending3(r[0], r[1], r[2])
-        d = (r[0], r[1], r[2])
-        w0, w1, w2 = d[i0], d[i1], d[i2]
-        cols = ((r[3], r[4], r[5]), (r[6], r[7], r[8]), (r[9], r[10], r[11]))
-        n0, n1, n2 = cols[i0]
-    else:  # not converged: LAPACK decides
-        cov = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
-        ew, ev = np.linalg.eigh(cov)
-        w0, w1, w2 = ew[0], ew[1], ew[2]
-        n0, n1, n2 = ev[0, 0], ev[1, 0], ev[2, 0]
+    ok, w0, w1, w2, n0, n1, n2 = _closed_form3(c00, c11, c22, c01, c02, c12)
+    if not ok:  # diagonal or nearly degenerate: Jacobi sweeps
+        r = _jacobi3(c00, c11, c22, c01, c02, c12)
+        if r[12]:
+            i0, i1, i2 = _ascending3(r[0], r[1], r[2])
+            d = (r[0], r[1], r[2])
+            w0, w1, w2 = d[i0], d[i1], d[i2]
+            cols = ((r[3], r[4], r[5]), (r[6], r[7], r[8]), (r[9], r[10], r[11]))
+            n0, n1, n2 = cols[i0]
+        else:  # not converged: LAPACK decides
+            cov = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
+            ew, ev = np.linalg.eigh(cov)
+            w0, w1, w2 = ew[0], ew[1], ew[2]
+            n0, n1, n2 = ev[0, 0], ev[1, 0], ev[2, 0]
     total = w0 + w1 + w2
     if total <= 0 or w1 <= 1e-6 * total:  # all points coincide or lie on a line
         return False, 0.0, 0.0, 0.0, 1.0
@@ -356,8 +398,11 @@ def voxel_normals(
     if grid is None or grid.size != voxel or len(grid.voxel) != len(points):
         grid = VoxelGrid.build(points, voxel)
     centre = _column_mean(points) if len(points) else np.zeros(3)
-    sums = _voxel_moments(points, centre, grid.voxel, grid.n_voxels)
-    start, nbr = grid.neighbour_lists()  # kept on the grid: the sums here, the region growing next
+    # the moments (a pass over the points) beside the neighbour lists (over the voxels; kept on
+    # the grid: the sums here, the region growing next): serial nogil kernels, independent
+    (sums, (start, nbr)), _ = side_by_side(
+        lambda: _voxel_moments(points, centre, grid.voxel, grid.n_voxels), grid.neighbour_lists
+    )
     normals, curvature = np.full((grid.n_voxels, 3), np.nan), np.ones(grid.n_voxels)
     _fill_normals_lists(start, nbr, sums, normals, curvature)
     return grid, normals, curvature
