@@ -340,25 +340,18 @@ def _scatter(out, idx, values):
         out[idx[k]] = values[k]
 
 
-def _split_ground(ground, labels, code, idx, p, seg, v, tiny):
-    """``labels[idx[ground]] = code``; the ground rows of ``p``, and ``idx, p, seg, v, tiny``
-    of the other points, in one pass."""
+def _split_points(ground, labels, code, idx, p, v):
+    """``labels[idx[ground]] = code``; the ground rows of ``p``, and ``idx, p, v`` of the other
+    points, in one pass (the part of the ground split that needs nothing of the segmentation)."""
     ng = int(np.count_nonzero(ground))
     m = len(ground) - ng
-    out = (
-        np.empty((ng, 3)),
-        np.empty(m, np.int64),
-        np.empty((m, 3)),
-        np.empty(m, np.int64),
-        np.empty(m),
-        np.empty(m, bool),
-    )
-    _fill_split(ground, labels, code, idx, p, seg, v, tiny, *out)
+    out = np.empty((ng, 3)), np.empty(m, np.int64), np.empty((m, 3)), np.empty(m)
+    _fill_split_points(ground, labels, code, idx, p, v, *out)
     return out
 
 
 @njit(cache=True, nogil=True)
-def _fill_split(ground, labels, code, idx, p, seg, v, tiny, gp, idx2, p2, seg2, v2, tiny2):
+def _fill_split_points(ground, labels, code, idx, p, v, gp, idx2, p2, v2):
     a = b = 0
     for i in range(ground.shape[0]):
         if ground[i]:
@@ -366,8 +359,24 @@ def _fill_split(ground, labels, code, idx, p, seg, v, tiny, gp, idx2, p2, seg2, 
             gp[a, 0], gp[a, 1], gp[a, 2] = p[i, 0], p[i, 1], p[i, 2]
             a += 1
         else:
-            idx2[b], seg2[b], v2[b], tiny2[b] = idx[i], seg[i], v[i], tiny[i]
+            idx2[b], v2[b] = idx[i], v[i]
             p2[b, 0], p2[b, 1], p2[b, 2] = p[i, 0], p[i, 1], p[i, 2]
+            b += 1
+
+
+def _split_segments(ground, m, seg, tiny):
+    """``seg, tiny`` of the ``m`` points off the ground."""
+    out = np.empty(m, np.int64), np.empty(m, bool)
+    _fill_split_segments(ground, seg, tiny, *out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _fill_split_segments(ground, seg, tiny, seg2, tiny2):
+    b = 0
+    for i in range(ground.shape[0]):
+        if not ground[i]:
+            seg2[b], tiny2[b] = seg[i], tiny[i]
             b += 1
 
 
@@ -437,9 +446,10 @@ def _classify_finite(
         _scatter(segment, idx, seg)
         return seg, tiny
 
-    def ground_mask() -> tuple[np.ndarray, np.ndarray, float]:
+    def ground_mask() -> tuple[np.ndarray, tuple[np.ndarray, ...], float]:
         """Sec. 4.1 ground (needs nothing of the segmentation), then the Sec. 3.4 verticality
-        on the density voxels (inliers only; needs the normals alone) and its seconds."""
+        on the density voxels (inliers only; needs the normals alone; its seconds) and the split
+        of the points, off the ground or not."""
         g = cfg.ground
         mask = detect_ground(
             p, scale.ground_cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance
@@ -447,13 +457,16 @@ def _classify_finite(
         t = time.perf_counter()
         v = M.verticality(normals, dgrid.voxel, dgrid.n_voxels, normal_of, idx)
         _scatter(vert, idx, v)
-        return mask, v, time.perf_counter() - t
+        t_vert = time.perf_counter() - t
+        # the ground split of the points (and their verticality) while the segmentation runs
+        return mask, _split_points(mask, labels, L.GROUND, idx, p, v), t_vert
 
-    ((seg, tiny), (ground, v, t_vert)), (t_seg, t_ground) = side_by_side(segmentation, ground_mask)
+    ((seg, tiny), (ground, split, t_vert)), (t_seg, t_ground) = side_by_side(segmentation, ground_mask)
     t_ground -= t_vert
     clock.record({"segmentation": t_seg, "verticality": t_vert})
     t = time.perf_counter()
-    ground_pts, idx, p, seg, v, tiny = _split_ground(ground, labels, L.GROUND, idx, p, seg, v, tiny)
+    ground_pts, idx, p, v = split
+    seg, tiny = _split_segments(ground, len(idx), seg, tiny)
     scene = p
     clock.record({"ground": t_ground + time.perf_counter() - t})
     # foliage: where most points lie in segments of at most two normal voxels (see
