@@ -34,7 +34,9 @@ from prc_slam.mapclass.objects import (
     detect_posts,
     detect_vegetation,
     detect_vehicles,
+    ground_height_grid,
     height_above_ground,
+    scene_voxel_count,
     segment_voxels,
     under_crown,
 )
@@ -518,11 +520,11 @@ def _classify_finite(
             t["p"], t["seg"], ground_pts, c.min_points, (c.min_length, c.max_length), c.max_width,
             (c.min_height, c.max_height), c.max_ground_gap, cfg.small_segment_points, c.group_voxel,
             t["foliage"] if c.skip_foliage else None, t["vert"], c.max_verticality,
-            t["post"] if c.group_voxel > 0 else None)),
+            t["post"] if c.group_voxel > 0 else None, ahead.get("ground_heights"))),
         ("posts", L.POLE, posts_not_stems),
         ("stems", L.VEGETATION, lambda t: t["stem"]),
         ("vegetation", L.VEGETATION, lambda t: detect_vegetation(
-            t["p"], t["seg"], scene, e.voxel, e.factor, e.min_similar)
+            t["p"], t["seg"], scene, e.voxel, e.factor, e.min_similar, ahead.get("scene_voxels"))
             & (t["foliage"] if e.foliage_only else True)),
     ]  # fmt: skip
     if cfg.mode == "forest":
@@ -531,9 +533,22 @@ def _classify_finite(
         # foliage alone is vegetation
         steps = [("stems", L.TRUNK, lambda t: t["post"])] + [s for s in steps if s[0] not in ("posts", "stems")]
         steps[-1] = ("vegetation", L.VEGETATION, lambda t: t["foliage"])
+    # made beside the buildings step (serial kernels; the other core is free): what later steps
+    # need of the ground and the scene alone
+    ahead: dict = {}
+
+    def prepare() -> None:
+        if len(ground_pts):
+            ahead["ground_heights"] = ground_height_grid(ground_pts, 1.0, 3)  # detect_vehicles' own
+        if cfg.mode == "urban":
+            ahead["scene_voxels"] = scene_voxel_count(scene, e.voxel)
+
     for name, code, step in steps:
         if len(idx):
-            hit = step(pt)
+            if name == "buildings":
+                (hit, _), _ = side_by_side(lambda: step(pt), prepare)  # noqa: B023 (called here)
+            else:
+                hit = step(pt)
             labels[idx[hit]] = code
             keep = np.flatnonzero(~hit)
             idx = idx[keep]

@@ -305,12 +305,19 @@ def _lookup_cells(plane, table, coords, points, cell):
     return out
 
 
-def height_above_ground(points: np.ndarray, ground: np.ndarray, cell: float = 1.0, radius: int = 3) -> np.ndarray:
+def height_above_ground(
+    points: np.ndarray,
+    ground: np.ndarray,
+    cell: float = 1.0,
+    radius: int = 3,
+    heights: tuple[VoxelGrid, np.ndarray] | None = None,
+) -> np.ndarray:
     """Height of each point above the mean ground height of the cells beneath and close to it
-    (NaN where no ground lies within ``radius`` cells)."""
+    (NaN where no ground lies within ``radius`` cells). ``heights``: ``ground_height_grid(ground,
+    cell, radius)`` when already made."""
     if len(ground) == 0:
         return np.full(len(points), np.nan)
-    grid, gz = ground_height_grid(ground, cell, radius)
+    grid, gz = heights if heights is not None else ground_height_grid(ground, cell, radius)
     idx = _lookup_cells(grid.plane, grid.probe_table, grid.coords, points, cell)
     out = np.full(len(points), np.nan)
     has = idx >= 0
@@ -484,6 +491,7 @@ def detect_vehicles(
     verticality: np.ndarray | None = None,
     max_verticality: float = 1.0,
     posts: np.ndarray | None = None,
+    ground_heights: tuple[VoxelGrid, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Sec. 4.3: segments whose dimensions lie in vehicle ranges and whose bottom lies at most
     ``max_ground_gap`` above the ground beneath and close to them ("average vertical height
@@ -497,9 +505,10 @@ def detect_vehicles(
     mean ``verticality`` exceeds ``max_verticality`` (1 = paper): simulated cars average at most
     0.31 (roof, bonnet and glass face up), the facade pieces a street scanner sees low on
     buildings ~0.95. Points marked ``posts`` stay out of the groups (a sign pole beside a car
-    would widen it past 2.5 m).
+    would widen it past 2.5 m). ``ground_heights``: ``ground_height_grid(ground, 1.0, 3)`` when
+    already made.
     """
-    hag = height_above_ground(points, ground)
+    hag = height_above_ground(points, ground, heights=ground_heights)
     grid = VoxelGrid.build(points, group_voxel if group_voxel > 0 else 0.3)  # also the solidity test
     solid = grid.counts[grid.voxel] >= 3
     test = (min_points, length, max_width, height, max_ground_gap, solid, verticality, max_verticality, foliage)
@@ -638,15 +647,24 @@ def detect_vegetation(
     voxel: float = 1.0,
     factor: float = 2.0,
     min_similar: int = 2,
+    scene_voxels: int | None = None,
 ) -> np.ndarray:
     """Sec. 4.5: points in voxels whose segment density (distinct segments of the remaining
     points in the 3x3x3 neighbourhood, Sec. 3.3) is ``factor`` times the average over the
     scene's voxels (``scene_points``: all non-ground points) and with at least ``min_similar``
-    neighbouring voxels that high."""
+    neighbouring voxels that high. ``scene_voxels``: :func:`scene_voxel_count` when already
+    counted."""
     if len(points) == 0:
         return np.zeros(0, dtype=bool)
     density, grid = segment_density(points, segment, voxel)
-    n_scene = len(voxel_counts(scene_points, voxel)) if len(scene_points) else grid.n_voxels
+    n_scene = scene_voxels if scene_voxels is not None else scene_voxel_count(scene_points, voxel)
+    n_scene = n_scene or grid.n_voxels
     high = density >= factor * density.sum() / max(n_scene, 1)
     similar = grid.neighbourhood_sum(high.astype(float)) - high
     return (high & (similar >= min_similar))[grid.voxel]
+
+
+def scene_voxel_count(scene_points: np.ndarray, voxel: float) -> int:
+    """The voxels of side ``voxel`` the scene's points occupy (:func:`detect_vegetation`'s
+    average is over them); 0 for no points."""
+    return len(voxel_counts(scene_points, voxel)) if len(scene_points) else 0
