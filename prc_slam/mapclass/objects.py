@@ -111,7 +111,10 @@ def grid_distance(grid: VoxelGrid, query: np.ndarray, target: np.ndarray, limit:
         if 4 * len(asked_near) < len(targets):  # few queries: the targets near them suffice
             qgrid = VoxelGrid.build(asked_near, side)
             targets = targets[_any_in_cube(qgrid.table, qgrid.coords, targets, 1.0 / side)]
-        d[ask[near]], _ = cKDTree(targets).query(asked_near, distance_upper_bound=limit, workers=-1)
+        # an unbalanced tree of plain nodes: built ~2.5x faster (sliding-midpoint splits, no node
+        # shrinking), queried as fast; the nearest distance does not depend on the tree's shape
+        tree = cKDTree(targets, balanced_tree=False, compact_nodes=False)
+        d[ask[near]], _ = tree.query(asked_near, distance_upper_bound=limit, workers=-1)
     return _gather_marked(grid.voxel, query, d)
 
 
