@@ -19,11 +19,14 @@ ascending), so sums are bit-identical.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
+from itertools import pairwise
 
 import numpy as np
 from numba import njit, prange
 
 from prc_slam import unionfind as uf
+from prc_slam.threads import side_by_side
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -461,27 +464,42 @@ def _merge_neighbours(coords: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """3x3x3 neighbour lists (CSR, the voxel itself included) in the order of
     :func:`_neighbours` without the empty slots: a merge walk over the voxels sorted by linear
     key, one monotone pointer per (dx, dy) column, writing the lists in sorted order; then each
-    list moved to its voxel's place in input order. ``start`` is empty when the keys overflow."""
+    list moved to its voxel's place in input order. Large grids walk and move their two halves
+    of the sorted order side by side (:func:`prc_slam.threads.side_by_side`; the same lists).
+    ``start`` is empty when the keys overflow."""
     nv = len(coords)
     sorted_keys = _sorted_keys(coords)
     if sorted_keys is None:
         return np.zeros(0, np.int64), np.zeros(0, np.int32)
+    order = sorted_keys[0]
     walk = np.empty(27 * max(nv, 1), np.int32)  # at most 27 a voxel; untouched pages stay unmapped
     length = np.empty(nv, np.int64)
-    _merge_walk_lists(*sorted_keys, walk, length)
+    cuts = (0, nv // 2, nv) if nv >= SPLIT_MIN_VOXELS else (0, nv)
+    halves = list(pairwise(cuts))
+    side_by_side(*(partial(_merge_walk_range, *sorted_keys, walk, length, lo, hi) for lo, hi in halves))
     start = np.zeros(nv + 1, np.int64)
-    nbr = np.empty(int(length.sum()), np.int32)
-    _place_lists(sorted_keys[0], walk, length, start, nbr)
+    _list_starts(order, length, start)
+    nbr = np.empty(int(start[-1]), np.int32)
+    side_by_side(*(partial(_place_range, order, walk, length, start, nbr, lo, hi) for lo, hi in halves))
     return start, nbr
 
 
+#: grids with at least this many voxels walk their neighbour lists in two halves side by side
+SPLIT_MIN_VOXELS = 200_000
+
+
 @njit(cache=True, nogil=True)
-def _merge_walk_lists(order, sk, offs, walk, length):
-    """The lists of the voxels in sorted order, one after another in ``walk``; their lengths."""
+def _merge_walk_range(order, sk, offs, walk, length, lo, hi):
+    """The lists of the voxels at sorted positions ``lo..hi-1``, one after another in ``walk``
+    from ``walk[27 * lo]``; their lengths. Each column pointer starts where the walk from 0
+    would have left it (the first key not below the column's lowest)."""
     nv = order.shape[0]
     ptr = np.zeros(9, np.int64)
-    a = 0
-    for i in range(nv):
+    if lo < nv:
+        for o in range(9):
+            ptr[o] = np.searchsorted(sk, sk[lo] + offs[o] - 1)
+    a = 27 * lo
+    for i in range(lo, hi):
         a0 = a
         for o in range(9):
             t = sk[i] + offs[o]
@@ -497,15 +515,21 @@ def _merge_walk_lists(order, sk, offs, walk, length):
 
 
 @njit(cache=True, nogil=True)
-def _place_lists(order, walk, length, start, nbr):
-    """CSR in input order from the lists in sorted order: ``start`` (zeros) and ``nbr``."""
+def _list_starts(order, length, start):
+    """CSR starts in input order (``start`` zeros) from the lengths in sorted order."""
     nv = order.shape[0]
     for i in range(nv):
         start[order[i] + 1] = length[i]
     for v in range(nv):
         start[v + 1] += start[v]
-    a = 0
-    for i in range(nv):
+
+
+@njit(cache=True, nogil=True)
+def _place_range(order, walk, length, start, nbr, lo, hi):
+    """The lists of sorted positions ``lo..hi-1`` (from ``walk[27 * lo]``) moved to their
+    voxels' places in ``nbr``."""
+    a = 27 * lo
+    for i in range(lo, hi):
         b = start[order[i]]
         for j in range(length[i]):
             nbr[b + j] = walk[a + j]
