@@ -245,7 +245,9 @@ def warm_up_kernels(config: Config) -> None:
     from prc_slam.odometry.kiss import deskew_points
 
     pts = np.random.default_rng(0).uniform(-5, 5, (64, 3))
-    filter_points(pts, np.full(64, L.GROUND, np.uint8), config.filter)
+    codes = np.full(64, L.GROUND, np.uint8)
+    for dtype in (np.float64, np.float32):  # simulated sweeps give float64 points, most readers float32
+        filter_points(pts.astype(dtype), codes, config.filter, np.zeros(64, bool))
     deskew_points(pts, np.linspace(0, 0.1, 64), 0.05, 0.1, np.eye(4))
     gmap = GroupVoxelMap(1.0, 100.0, 20)
     gmap.update(pts, np.zeros(64, np.int64), np.eye(4))
