@@ -514,6 +514,16 @@ def _classify_finite(
             hit |= under_crown(t["p"], roof, cell=cell, reach=1, above=0.5) & ~t["post"]
         return hit
 
+    # made beside the buildings step (serial kernels; the other core is free): what later steps
+    # need of the ground and the scene alone
+    ahead: dict = {}
+
+    def prepare() -> None:
+        if len(ground_pts):
+            ahead["ground_heights"] = ground_height_grid(ground_pts, 1.0, 3)  # detect_vehicles' own
+        if cfg.mode == "urban":
+            ahead["scene_voxels"] = scene_voxel_count(scene, e.voxel)
+
     steps = [
         ("buildings", L.BUILDING, buildings),
         ("vehicles", L.VEHICLE, lambda t: detect_vehicles(
@@ -533,16 +543,6 @@ def _classify_finite(
         # foliage alone is vegetation
         steps = [("stems", L.TRUNK, lambda t: t["post"])] + [s for s in steps if s[0] not in ("posts", "stems")]
         steps[-1] = ("vegetation", L.VEGETATION, lambda t: t["foliage"])
-    # made beside the buildings step (serial kernels; the other core is free): what later steps
-    # need of the ground and the scene alone
-    ahead: dict = {}
-
-    def prepare() -> None:
-        if len(ground_pts):
-            ahead["ground_heights"] = ground_height_grid(ground_pts, 1.0, 3)  # detect_vehicles' own
-        if cfg.mode == "urban":
-            ahead["scene_voxels"] = scene_voxel_count(scene, e.voxel)
-
     for name, code, step in steps:
         if len(idx):
             if name == "buildings":
