@@ -767,39 +767,64 @@ def estimate_beam_offset(xyz: np.ndarray, max_offset: float = 0.1, samples: int 
     return best if scores_f[:-1].max() > 1.05 * scores_f[-1] else 0.0
 
 
+#: 0.005 deg bins over [-90, 90] deg (the elevation histogram of the beam-offset search)
+ELEVATION_BINS = 36000
+
+
 @njit(cache=True, nogil=True)
 def _sharpness_of(z, rho, offsets, kernel, out, lo, hi):
-    """:func:`_elevation_sharpness` for the offsets ``lo..hi - 1`` into ``out``."""
+    """:func:`_elevation_sharpness` for the offsets ``lo..hi - 1`` into ``out`` (one histogram
+    and one bin array for all of them)."""
+    half = kernel.shape[0] // 2
+    h = np.zeros(ELEVATION_BINS + 2 * half)  # padded: the kernel may reach past both ends
+    u = np.empty(z.shape[0])
     for i in range(lo, hi):
-        out[i] = _elevation_sharpness(z, rho, offsets[i], kernel)
+        out[i] = _elevation_sharpness(z, rho, offsets[i], kernel, h, u)
 
 
 @njit(cache=True, nogil=True)
-def _elevation_sharpness(z, rho, n, kernel):
+def _elevation_sharpness(z, rho, n, kernel, h, u):
     """Sharpness of the elevation histogram with the beams ``n`` metres off the axis: elevations
     ``atan(z / (rho - n))`` in 0.005 deg bins over (-90, 90), smoothed by ``kernel`` (centred) so
     that bin edges do not count, summed squared. Only the bins the points reach (and the
-    kernel's reach around them) are visited."""
-    bins = 36000
+    kernel's reach around them) are visited. ``h`` (zeros, ``ELEVATION_BINS`` + the kernel's
+    width) and ``u`` (one entry per point) are work arrays; ``h`` is left zeroed.
+
+    The bins are first taken from :func:`_atan2`'s polynomial (within 2e-6 rad, 2 % of a bin) in a loop
+    that vectorises; the points within 5 % of a bin's edge are binned again with ``arctan``,
+    so every bin is the one ``arctan`` gives (``rho - n > 0`` here)."""
+    bins = ELEVATION_BINS
     half = kernel.shape[0] // 2
-    h = np.zeros(bins + 2 * half)  # padded: the kernel may reach past both ends
+    scale = 180.0 / np.pi / 0.005
+    for i in range(z.shape[0]):  # _atan2 for x > 0, without branches
+        x = rho[i] - n
+        ay = abs(z[i])
+        a = min(x, ay) / max(x, ay)
+        q = a * a
+        r = (((((-0.0117212 * q + 0.05265332) * q - 0.11643287) * q + 0.19354346) * q - 0.33262347) * q + 0.99997726) * a
+        r = 1.5707963267948966 - r if ay > x else r
+        u[i] = (-r if z[i] < 0.0 else r) * scale + 90.0 / 0.005
     lo = bins
     hi = -1
     for i in range(z.shape[0]):
-        el = np.degrees(np.arctan(z[i] / (rho[i] - n)))
-        k = math.floor((el + 90.0) / 0.005)
-        if k == bins and el <= 90.0:  # the last bin is closed, as np.histogram's
-            k = bins - 1
-        if 0 <= k < bins:
-            h[k + half] += 1.0
-            lo = min(lo, k)
-            hi = max(hi, k)
+        b = math.floor(u[i])
+        if u[i] - b < 0.05 or u[i] - b > 0.95:
+            el = np.degrees(np.arctan(z[i] / (rho[i] - n)))
+            b = math.floor((el + 90.0) / 0.005)
+            if b == bins and el <= 90.0:  # the last bin is closed, as np.histogram's
+                b = bins - 1
+        if 0 <= b < bins:
+            h[int(b) + half] += 1.0
+            lo = min(lo, int(b))
+            hi = max(hi, int(b))
     total = 0.0
     for j in range(max(lo - half, 0), min(hi + half, bins - 1) + 1):
         v = 0.0
         for t in range(kernel.shape[0]):
             v += kernel[t] * h[j + t]
         total += v * v
+    if hi >= lo:
+        h[lo + half : hi + half + 1] = 0.0
     return total
 
 
