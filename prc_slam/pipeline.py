@@ -13,6 +13,7 @@ silently dropped; a run in which no frame could be read is an error naming the f
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -127,6 +128,62 @@ def _complete(pending: list, blocks: list) -> list[tuple[Scan, np.ndarray, np.nd
     return out
 
 
+_END = object()
+
+
+class NextFrame:
+    """The next frame of a run: made on demand (:meth:`take`), or on a background thread beside
+    the caller's work on the current frame (:meth:`start`, then :meth:`wait`).
+
+    The odometry stage starts it once the variants that do not need PRC have registered the
+    current frame, so that reading, organising and classifying the next sweep share the cores
+    with the current sweep's filter and registration (KISS-ICP holds the GIL while it registers;
+    the organiser's and PRC's numba kernels release it). An error raised while making the frame
+    is raised again by :meth:`take`, in the caller's thread.
+    """
+
+    def __init__(self, frames: Iterator[ClassifiedFrame]) -> None:
+        self._frames = frames
+        self._thread: threading.Thread | None = None
+        self._item: Any = None
+        self._error: BaseException | None = None
+        self.seconds = 0.0
+
+    def _advance(self) -> None:
+        t0 = time.perf_counter()
+        try:
+            self._item = next(self._frames, _END)
+        except BaseException as exc:  # raised again by take(), in the caller's thread
+            self._error = exc
+        self.seconds = time.perf_counter() - t0
+
+    def start(self) -> None:
+        """Begin making the next frame on a background thread (nothing when already begun)."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._advance, name="prc-slam-next-frame", daemon=True)
+            self._thread.start()
+
+    def wait(self) -> float:
+        """Wait until the frame begun by :meth:`start` is made; its wall time (s), 0 if not begun."""
+        if self._thread is None:
+            return 0.0
+        self._thread.join()
+        return self.seconds
+
+    def take(self) -> ClassifiedFrame | None:
+        """The next frame (None after the last), made now unless :meth:`start` began it."""
+        if self._thread is None:
+            self._advance()
+        else:
+            self._thread.join()
+            self._thread = None
+        item, error = self._item, self._error
+        self._item = self._error = None
+        if error is not None:
+            raise error
+        return None if item is _END else item
+
+
 @dataclass
 class PipelineFrame:
     """Everything the stages produced for one input frame, as the sinks see it.
@@ -216,7 +273,7 @@ class Sink(Protocol):
 class OdometryStage(Protocol):
     """The odometry variants as one stage (``prc_slam.odometry.compare.OdometryVariants``)."""
 
-    def step(self, index: int, frame: ClassifiedFrame) -> Any: ...
+    def step(self, index: int, frame: ClassifiedFrame, ahead: NextFrame | None = None) -> Any: ...
 
     def result(self) -> Any: ...
 
@@ -232,6 +289,7 @@ class Pipeline:
         An :class:`prc_slam.online.OnlineDetector` to run on every scan.
     odometry : OdometryStage or None
         The odometry variants (each filters with the PRC labels as its policy says, then registers).
+        The stage may have the next frame made beside its registration of this one (:class:`NextFrame`).
     sinks : sequence of Sink
         Called in order for every frame and once at the end.
     on_frame : callable, optional
@@ -315,8 +373,11 @@ class Pipeline:
         """
         result = PipelineResult()
         t_start = time.perf_counter()
+        frames = NextFrame(self._classified(self._readable(scans, result)))
+        index = -1
         try:
-            for index, frame in enumerate(self._classified(self._readable(scans, result))):
+            while (frame := frames.take()) is not None:
+                index += 1
                 scan = frame.scan
                 n = scan.n_points
                 result.frames += 1
@@ -336,14 +397,18 @@ class Pipeline:
                         result.online_seconds_first = step.online.seconds
                         result.online_points_first = n
                 if self.odometry is not None:
-                    step.odometry = self.odometry.step(index, frame)
+                    step.odometry = self.odometry.step(index, frame, frames)
                 for sink in self.sinks:
                     sink.frame(step)
                 if self.on_frame is not None:
                     self.on_frame(step)
         except KeyboardInterrupt:
             result.interrupted = True
+            frames.wait()  # the next frame's thread writes into result (skips, organiser)
             self._finish(result, t_start)
+            raise
+        except BaseException:
+            frames.wait()
             raise
         self._finish(result, t_start)
         if result.frames == 0 and result.skipped:

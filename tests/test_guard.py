@@ -182,3 +182,25 @@ def test_health_is_recorded_per_frame(short_drive):
     assert len(health) == 6 and health[0].source_points == 0  # no map on the first frame
     for h in health[1:]:
         assert 0.5 < h.inlier_fraction <= 1.0 and 0 < h.mean_residual_m < h.threshold_m * 3
+
+
+def test_overlap_changes_no_pose_and_charges_the_wall_time(short_drive):
+    """The next frame made beside the PRC variants' registration: the same poses as one after the
+    other; a PRC variant is credited at most its own filter and registration time, ``raw`` nothing."""
+    scans = [short_drive[i] for i in range(8)]
+    runs = {}
+    for overlap in (False, True):
+        cfg = Config(prc=PRCConfig.preset("multibeam"), odometry=OdometryConfig(max_num_threads=1, overlap=overlap))
+        runs[overlap] = run_compare(iter(scans), cfg, ["prc", "raw"])
+    for name in ("raw", "prc"):
+        np.testing.assert_allclose(runs[True].runs[name].poses, runs[False].runs[name].poses, rtol=0, atol=1e-9)
+    assert not any(runs[False].runs["prc"].hidden) and not any(runs[True].runs["raw"].hidden)
+    prc = runs[True].runs["prc"]
+    hidden = np.array(prc.hidden)
+    busy = np.array(prc.ms["filter"]) + np.array(prc.ms["icp"]) + np.array(prc.odometry.health_ms)
+    assert len(hidden) == 8 and (hidden >= 0).all() and (hidden <= busy + 1e-9).all() and hidden.sum() > 0
+    np.testing.assert_allclose(prc.ms_per_frame(), prc.ms_per_frame(serial=True) - hidden)
+    m = runs[True].metrics()["variants"]["prc"]
+    assert m["ms_overlapped"] == pytest.approx(hidden.mean())
+    assert m["ms_per_frame"] == pytest.approx(m["ms_per_frame_serial"] - hidden.mean())
+    assert m["per_frame"]["ms"] == pytest.approx(prc.ms_per_frame().tolist())

@@ -15,7 +15,7 @@ from data_tools import open_dataset
 from data_tools.sim.dataset import write_sequence
 from data_tools.sim.simulator import SimConfig, Simulator
 from prc_slam.cli import app
-from prc_slam.pipeline import FrameError, Pipeline, PipelineFrame, PipelineResult, classify_frames
+from prc_slam.pipeline import FrameError, NextFrame, Pipeline, PipelineFrame, PipelineResult, classify_frames
 from prc_slam.prc.config import PRCConfig
 
 runner = CliRunner()
@@ -161,3 +161,27 @@ def test_compare_online_records_every_stage_of_every_logged_frame(tmp_path, hdl6
         assert seen == {0, 1, 2, 3}, f"{path}: logged on frames {sorted(seen)}"
     m = json.loads((tmp_path / "c" / "metrics.json").read_text())
     assert m["online"]["frames"] == 4 and "per_class" in m["online"]
+
+
+def test_next_frame_made_beside_the_caller_comes_back_in_order_with_its_errors():
+    made: list[int] = []
+
+    def frames():
+        for i in range(3):
+            made.append(i)
+            yield i
+        raise FrameError("seq/000003.bin: truncated")
+
+    ahead = NextFrame(frames())
+    assert ahead.wait() == 0.0  # nothing begun
+    ahead.start()
+    ahead.start()  # once begun, not again
+    assert ahead.wait() >= 0.0 and made == [0]
+    assert ahead.take() == 0
+    assert ahead.take() == 1  # made on demand
+    ahead.start()
+    assert ahead.take() == 2
+    ahead.start()
+    with pytest.raises(FrameError, match=r"000003\.bin: truncated"):  # raised again in this thread
+        ahead.take()
+    assert ahead.take() is None and ahead.take() is None  # the end, for good

@@ -25,13 +25,15 @@ from prc_slam.odometry import classaware
 from prc_slam.odometry.agreement import AgreementMonitor
 from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry
 from prc_slam.odometry.kiss import KissOdometry
-from prc_slam.pipeline import ClassifiedFrame, classify_frames
+from prc_slam.pipeline import ClassifiedFrame, NextFrame, classify_frames
 from prc_slam.prc.algorithm import warm_up
 from prc_slam.scan import Scan
 
 #: peer variants (issue 15, part 3): a filter of another method before the same KISS-ICP settings
 PEER_VARIANTS = ("sor", "ror", "patchwork")
-VARIANTS = ("raw", "prc", "prc+classaware", *PEER_VARIANTS)
+#: the variants that filter with PRC's labels
+PRC_VARIANTS = ("prc", "prc+classaware")
+VARIANTS = ("raw", *PRC_VARIANTS, *PEER_VARIANTS)
 DEFAULT_VARIANTS = ("raw", "prc")
 
 
@@ -48,6 +50,9 @@ class VariantRun:
     name: str
     odometry: KissOdometry | ClassAwareOdometry
     ms: dict[str, list[float]] = field(default_factory=lambda: {k: [] for k in STAGES})
+    #: per frame, the milliseconds of the stages that ran beside others (the next frame's PRC
+    #: beside this frame's filter and registration), subtracted from their sum
+    hidden: list[float] = field(default_factory=list)
     points_in: list[int] = field(default_factory=list)
     points_to_icp: list[int] = field(default_factory=list)
     counts_in: dict[str, int] = field(default_factory=dict)
@@ -62,10 +67,15 @@ class VariantRun:
     def frames(self) -> int:
         return len(self.odometry.poses)
 
-    def ms_per_frame(self) -> np.ndarray:
+    def ms_per_frame(self, serial: bool = False) -> np.ndarray:
+        """Wall milliseconds per frame: the stages' sum less what ran beside them (``serial``:
+        the sum alone)."""
         n = self.frames
         parts = [self.ms[k][:n] for k in STAGES if len(self.ms[k]) >= n and n]
-        return np.sum(parts, axis=0) if parts else np.zeros(0)
+        if not parts:
+            return np.zeros(0)
+        total = np.sum(parts, axis=0)
+        return total if serial or len(self.hidden) < n else total - np.asarray(self.hidden[:n])
 
     def first_suspicious(self) -> tuple[int, str] | None:
         """Index and reason of the first frame flagged by the divergence detector."""
@@ -125,6 +135,8 @@ class CompareResult:
                 "points_in": float(np.mean(run.points_in)) if n else None,
                 "points_to_icp": float(np.mean(run.points_to_icp)) if n else None,
                 "ms_per_stage": {k: float(np.mean(v)) for k, v in run.ms.items() if v},
+                "ms_per_frame_serial": float(np.mean(run.ms_per_frame(serial=True))) if n else None,
+                "ms_overlapped": float(np.mean(run.hidden[:n])) if n and len(run.hidden) >= n else None,
                 "ms_health": float(np.mean(run.odometry.health_ms)) if run.odometry.health_ms else None,
             }
             if run.failed is not None:
@@ -137,6 +149,7 @@ class CompareResult:
             m["first_suspicious_frame"] = None if first is None else first[0]
             m["first_suspicious_reason"] = None if first is None else first[1]
             m["per_frame"] = {
+                "ms": ms.tolist(),
                 "inliers": [h.inliers for h in health],
                 "source_points": [h.source_points for h in health],
                 "inlier_fraction": [h.inlier_fraction for h in health],
@@ -310,9 +323,17 @@ class OdometryVariants:
     def all_failed(self) -> bool:
         return all(r.failed is not None for r in self.runs.values())
 
-    def step(self, index: int, frame: ClassifiedFrame) -> FrameRecord:
+    def step(self, index: int, frame: ClassifiedFrame, ahead: NextFrame | None = None) -> FrameRecord:
         """Filter and register one frame with every variant still running (once every variant
-        has failed, frames are no longer recorded)."""
+        has failed, frames are no longer recorded).
+
+        The variants without PRC register first, alone. With ``ahead`` (and ``odometry.overlap``),
+        the next frame is then read, organised and classified on a second thread while the PRC
+        variants filter and register this one; each PRC variant is credited the time that ran
+        beside its own (``VariantRun.hidden``): the shared window's stage times less its wall
+        time, at most the variant's own filter and registration (each PRC variant is charged as
+        if it ran alone beside the next frame's PRC, as each is charged that frame's PRC in full).
+        """
         config = self.config
         scan = frame.scan
         if self.all_failed:
@@ -323,17 +344,24 @@ class OdometryVariants:
         kept: dict[str, np.ndarray] = {}
         poses: dict[str, np.ndarray] = {}
         labels = frame.point_labels() if self.needs_prc else None
-        for name, run in self.runs.items():
+        order = [n for n in self.runs if n not in PRC_VARIANTS] + [n for n in self.runs if n in PRC_VARIANTS]
+        window = None  # start of the PRC variants' window beside the next frame
+        busy: dict[str, float] = {}  # PRC variant -> its filter, registration and health in the window (ms)
+        for name in order:
+            run = self.runs[name]
             if run.failed is not None:
                 continue
+            if window is None and name in PRC_VARIANTS and ahead is not None and config.odometry.overlap:
+                ahead.start()
+                window = time.perf_counter()
             try:
-                if name in ("prc", "prc+classaware"):
+                if name in PRC_VARIANTS:
                     run.ms["prc"].append(frame.seconds * 1e3)
                 t0 = time.perf_counter()
                 keep, codes, res = _select(name, pts, labels, frame, config)
                 if name != "raw":
                     run.ms["filter"].append((time.perf_counter() - t0) * 1e3)
-                t0 = time.perf_counter()
+                t1 = time.perf_counter()
                 sel = keep if res is None else res.kept_in_order  # PRC chooses what is registered, and in which order
                 extra = {}
                 if res is not None and res.source is not None:
@@ -346,14 +374,19 @@ class OdometryVariants:
                 pose = run.odometry.register(
                     pts[sel], None if t is None else t[sel], None if codes is None else codes[sel], frame_time, **extra
                 )  # fmt: skip
+                t2 = time.perf_counter()
                 # the guard's health (residuals on its shadow map) is monitoring, not registration
-                run.ms["icp"].append((time.perf_counter() - t0) * 1e3 - run.odometry.health_ms[-1])
+                run.ms["icp"].append((t2 - t1) * 1e3 - run.odometry.health_ms[-1])
             except Exception as exc:  # one variant's failure must not end the others
                 reason = getattr(exc, "reason", None) or f"{type(exc).__name__}: {exc}"
                 run.failed = {"frame": index, "reason": reason}
                 for k in run.ms:  # stage times of the frames with a pose only
                     del run.ms[k][run.frames :]
+                del run.hidden[run.frames :]
                 continue
+            if window is not None:
+                busy[name] = (t2 - t0) * 1e3
+            run.hidden.append(0.0)
             poses[name] = pose
             if res is not None:
                 for k, n in res.counts_in.items():
@@ -363,6 +396,12 @@ class OdometryVariants:
             run.points_in.append(len(pts))
             run.points_to_icp.append(int(keep.sum()))
             kept[name] = keep
+        if window is not None:
+            beside = ahead.wait() * 1e3  # the next frame's reading, organising and PRC
+            wall = (time.perf_counter() - window) * 1e3
+            saved = max(0.0, beside + sum(busy.values()) - wall)
+            for name, ms in busy.items():
+                self.runs[name].hidden[-1] = min(saved, ms, beside)
         self._cross_check(index, pts, poses)
         self.gt.append(scan.gt_pose)
         self.times.append(frame_time if frame_time is not None else float(index))
@@ -403,10 +442,16 @@ def run_compare(
     every variant has failed."""
     stage = OdometryVariants(config, variants)
     frames = classify_frames(scans, config.prc) if stage.needs_prc else (ClassifiedFrame(s, None, 0.0) for s in scans)
-    for i, frame in enumerate(frames):
-        record = stage.step(i, frame)
-        if on_frame is not None and record.poses:
-            on_frame(record)
-        if stage.all_failed:
-            break
+    ahead = NextFrame(iter(frames))
+    i = 0
+    try:
+        while (frame := ahead.take()) is not None:
+            record = stage.step(i, frame, ahead)
+            if on_frame is not None and record.poses:
+                on_frame(record)
+            if stage.all_failed:
+                break
+            i += 1
+    finally:
+        ahead.wait()
     return stage.result()

@@ -67,6 +67,12 @@ class OdometryConfig(BaseModel):
         description="reference: poses at each frame's reference time, deskewed by the adapter with the real "
         "per-point times; kiss: KISS-ICP's own deskewing (stamps normalised over the frame, pose at the last point)",
     )
+    overlap: bool = Field(
+        True,
+        description="in compare and odometry runs: read, organise and classify the next frame on a second thread "
+        "while the PRC variants filter and register this one (variants without PRC register alone); a PRC "
+        "variant is charged the wall time",
+    )
     guard: GuardConfig = Field(default_factory=GuardConfig)
 
 
