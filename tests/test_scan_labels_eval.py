@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from prc_slam import labels as L
 from prc_slam.evaluation import ConfusionAccumulator
@@ -100,3 +102,27 @@ def test_confusion_hand_computed():
     np.testing.assert_allclose(js["matrix"][0], [0.75, 0.0, 0.25])
     with pytest.raises(ValueError, match="reference labels for"):
         acc.add(ref, pred[:3])
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    rows=st.integers(1, 128),
+    cols=st.integers(2, 4096),
+    seed=st.integers(0, 2**32 - 1),
+    azimuth0=st.floats(-7.0, 7.0),
+    direction=st.sampled_from([-1, 1]),
+)
+def test_unit_rays_from_angle_sums_equal_the_directions(rows, cols, seed, azimuth0, direction):
+    rng = np.random.default_rng(seed)
+    sensor = SpinningSensor.create(
+        rng.uniform(-1.5, 1.5, rows),
+        cols,
+        beam_azimuth=rng.uniform(-0.2, 0.2, rows),
+        column_shift=rng.integers(-32, 32, rows).astype(float),
+        azimuth0=azimuth0,
+        direction=direction,
+    )
+    rays = sensor.unit_rays
+    assert rays.dtype == np.float32 and rays.shape == (rows, cols, 3)
+    np.testing.assert_allclose(rays, sensor.directions(), rtol=0, atol=1e-7)  # float32's rounding
+    np.testing.assert_allclose(np.linalg.norm(rays, axis=-1), 1.0, atol=1e-6)
