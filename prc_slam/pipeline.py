@@ -148,6 +148,7 @@ class NextFrame:
         self._item: Any = None
         self._error: BaseException | None = None
         self.seconds = 0.0
+        self.done_at = 0.0  # time.perf_counter() when the frame was made
 
     def _advance(self) -> None:
         t0 = time.perf_counter()
@@ -155,7 +156,8 @@ class NextFrame:
             self._item = next(self._frames, _END)
         except BaseException as exc:  # raised again by take(), in the caller's thread
             self._error = exc
-        self.seconds = time.perf_counter() - t0
+        self.done_at = time.perf_counter()
+        self.seconds = self.done_at - t0
 
     def start(self) -> None:
         """Begin making the next frame on a background thread (nothing when already begun)."""
@@ -169,6 +171,11 @@ class NextFrame:
             return 0.0
         self._thread.join()
         return self.seconds
+
+    @property
+    def made(self) -> ClassifiedFrame | None:
+        """After :meth:`wait`: the frame made (None at the end of the input or on an error)."""
+        return self._item if isinstance(self._item, ClassifiedFrame) else None
 
     def take(self) -> ClassifiedFrame | None:
         """The next frame (None after the last), made now unless :meth:`start` began it."""

@@ -186,7 +186,8 @@ def test_health_is_recorded_per_frame(short_drive):
 
 def test_overlap_changes_no_pose_and_charges_the_wall_time(short_drive):
     """The next frame made beside the PRC variants' registration: the same poses as one after the
-    other; a PRC variant is credited at most its own filter and registration time, ``raw`` nothing."""
+    other; a PRC variant is credited at most its own filter and registration time and the next
+    frame's charged PRC time, ``raw`` nothing."""
     scans = [short_drive[i] for i in range(8)]
     runs = {}
     for overlap in (False, True):
@@ -199,6 +200,8 @@ def test_overlap_changes_no_pose_and_charges_the_wall_time(short_drive):
     hidden = np.array(prc.hidden)
     busy = np.array(prc.ms["filter"]) + np.array(prc.ms["icp"]) + np.array(prc.odometry.health_ms)
     assert len(hidden) == 8 and (hidden >= 0).all() and (hidden <= busy + 1e-9).all() and hidden.sum() > 0
+    # at most the next frame's organising and PRC (reading is charged to no variant); none after the last
+    assert (hidden[:-1] <= np.array(prc.ms["prc"][1:]) + 1e-9).all() and hidden[-1] == 0.0
     np.testing.assert_allclose(prc.ms_per_frame(), prc.ms_per_frame(serial=True) - hidden)
     m = runs[True].metrics()["variants"]["prc"]
     assert m["ms_overlapped"] == pytest.approx(hidden.mean())

@@ -329,10 +329,9 @@ class OdometryVariants:
 
         The variants without PRC register first, alone. With ``ahead`` (and ``odometry.overlap``),
         the next frame is then read, organised and classified on a second thread while the PRC
-        variants filter and register this one; each PRC variant is credited the time that ran
-        beside its own (``VariantRun.hidden``): the shared window's stage times less its wall
-        time, at most the variant's own filter and registration (each PRC variant is charged as
-        if it ran alone beside the next frame's PRC, as each is charged that frame's PRC in full).
+        variants filter and register this one; each PRC variant is credited the next frame's
+        organising and PRC time that ran beside its own filter and registration
+        (``VariantRun.hidden``, :meth:`_credit`).
         """
         config = self.config
         scan = frame.scan
@@ -345,15 +344,15 @@ class OdometryVariants:
         poses: dict[str, np.ndarray] = {}
         labels = frame.point_labels() if self.needs_prc else None
         order = [n for n in self.runs if n not in PRC_VARIANTS] + [n for n in self.runs if n in PRC_VARIANTS]
-        window = None  # start of the PRC variants' window beside the next frame
-        busy: dict[str, float] = {}  # PRC variant -> its filter, registration and health in the window (ms)
+        window = False  # the next frame is being made beside the PRC variants
+        busy: dict[str, tuple[float, float]] = {}  # PRC variant -> its filter, registration and health
         for name in order:
             run = self.runs[name]
             if run.failed is not None:
                 continue
-            if window is None and name in PRC_VARIANTS and ahead is not None and config.odometry.overlap:
+            if not window and name in PRC_VARIANTS and ahead is not None and config.odometry.overlap:
                 ahead.start()
-                window = time.perf_counter()
+                window = True
             try:
                 if name in PRC_VARIANTS:
                     run.ms["prc"].append(frame.seconds * 1e3)
@@ -384,8 +383,8 @@ class OdometryVariants:
                     del run.ms[k][run.frames :]
                 del run.hidden[run.frames :]
                 continue
-            if window is not None:
-                busy[name] = (t2 - t0) * 1e3
+            if window:
+                busy[name] = (t0, t2)
             run.hidden.append(0.0)
             poses[name] = pose
             if res is not None:
@@ -396,17 +395,32 @@ class OdometryVariants:
             run.points_in.append(len(pts))
             run.points_to_icp.append(int(keep.sum()))
             kept[name] = keep
-        if window is not None:
-            beside = ahead.wait() * 1e3  # the next frame's reading, organising and PRC
-            wall = (time.perf_counter() - window) * 1e3
-            saved = max(0.0, beside + sum(busy.values()) - wall)
-            for name, ms in busy.items():
-                self.runs[name].hidden[-1] = min(saved, ms, beside)
+        if window:
+            ahead.wait()
+            self._credit(self.runs, busy, ahead)
         self._cross_check(index, pts, poses)
         self.gt.append(scan.gt_pose)
         self.times.append(frame_time if frame_time is not None else float(index))
         self.names.append(scan.name)
         return FrameRecord(frame, index, kept, poses, self.runs)
+
+    @staticmethod
+    def _credit(runs: dict[str, VariantRun], busy: dict[str, tuple[float, float]], ahead: NextFrame) -> None:
+        """Credit each PRC variant the charged time of the next frame that ran beside its own work.
+
+        ``busy``: each PRC variant's filter, registration and health in the window, as
+        ``time.perf_counter()`` intervals. Of the second thread's work only organising and PRC
+        (``ClassifiedFrame.seconds``) are charged (reading is no variant's cost); they are its last
+        ``seconds`` before the frame was made. A variant is credited the part of that interval that
+        overlaps its own.
+        """
+        made = ahead.made
+        if made is None:
+            return
+        end = ahead.done_at
+        start = end - min(made.seconds, ahead.seconds)
+        for name, (t0, t1) in busy.items():
+            runs[name].hidden[-1] = max(0.0, min(t1, end) - max(t0, start)) * 1e3
 
     def _cross_check(self, index: int, pts: np.ndarray, poses: dict[str, np.ndarray]) -> None:
         """Hold the variants that registered this frame against each other
