@@ -329,9 +329,9 @@ class OdometryVariants:
 
         The variants without PRC register first, alone. With ``ahead`` (and ``odometry.overlap``),
         the next frame is then read, organised and classified on a second thread while the PRC
-        variants filter and register this one; each PRC variant is credited the next frame's
-        organising and PRC time that ran beside its own filter and registration
-        (``VariantRun.hidden``, :meth:`_credit`).
+        variants filter and register this one, taking turns at going first from frame to frame;
+        each PRC variant is credited the next frame's organising and PRC time that ran beside its
+        own filter and registration (``VariantRun.hidden``, :meth:`_credit`).
         """
         config = self.config
         scan = frame.scan
@@ -343,7 +343,9 @@ class OdometryVariants:
         kept: dict[str, np.ndarray] = {}
         poses: dict[str, np.ndarray] = {}
         labels = frame.point_labels() if self.needs_prc else None
-        order = [n for n in self.runs if n not in PRC_VARIANTS] + [n for n in self.runs if n in PRC_VARIANTS]
+        with_prc = [n for n in self.runs if n in PRC_VARIANTS]
+        turn = index % len(with_prc) if with_prc else 0  # the PRC variants take turns at going first
+        order = [n for n in self.runs if n not in PRC_VARIANTS] + with_prc[turn:] + with_prc[:turn]
         window = False  # the next frame is being made beside the PRC variants
         busy: dict[str, tuple[float, float]] = {}  # PRC variant -> its filter, registration and health
         for name in order:
