@@ -330,8 +330,8 @@ class OdometryVariants:
         The variants without PRC register first, alone. With ``ahead`` (and ``odometry.overlap``),
         the next frame is then read, organised and classified on a second thread while the PRC
         variants filter and register this one, taking turns at going first from frame to frame;
-        each PRC variant is credited the next frame's organising and PRC time that ran beside its
-        own filter and registration (``VariantRun.hidden``, :meth:`_credit`).
+        the next frame's organising and PRC time that ran beside them is credited to each
+        (``VariantRun.hidden``, :meth:`_credit`).
         """
         config = self.config
         scan = frame.scan
@@ -408,21 +408,24 @@ class OdometryVariants:
 
     @staticmethod
     def _credit(runs: dict[str, VariantRun], busy: dict[str, tuple[float, float]], ahead: NextFrame) -> None:
-        """Credit each PRC variant the charged time of the next frame that ran beside its own work.
+        """Credit the PRC variants the charged time of the next frame that ran beside their work.
 
         ``busy``: each PRC variant's filter, registration and health in the window, as
-        ``time.perf_counter()`` intervals. Of the second thread's work only organising and PRC
-        (``ClassifiedFrame.seconds``) are charged (reading is no variant's cost); they are its last
-        ``seconds`` before the frame was made. A variant is credited the part of that interval that
-        overlaps its own.
+        ``time.perf_counter()`` intervals (one after the other on this thread). Of the second
+        thread's work only organising and PRC (``ClassifiedFrame.seconds``) are charged (reading is
+        no variant's cost); they are its last ``seconds`` before the frame was made. The part of
+        that interval beside any PRC variant's work is credited to each (at most its own busy
+        time): each PRC variant is charged the next frame's PRC in full, including the time it
+        spent waiting beside another variant's registration (KISS-ICP holds the GIL).
         """
         made = ahead.made
         if made is None:
             return
         end = ahead.done_at
         start = end - min(made.seconds, ahead.seconds)
+        beside = sum(max(0.0, min(t1, end) - max(t0, start)) for t0, t1 in busy.values()) * 1e3
         for name, (t0, t1) in busy.items():
-            runs[name].hidden[-1] = max(0.0, min(t1, end) - max(t0, start)) * 1e3
+            runs[name].hidden[-1] = min(beside, (t1 - t0) * 1e3)
 
     def _cross_check(self, index: int, pts: np.ndarray, poses: dict[str, np.ndarray]) -> None:
         """Hold the variants that registered this frame against each other
