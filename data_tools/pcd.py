@@ -34,8 +34,9 @@ log = logging.getLogger("prc_slam.readers")
 
 SWEEP_SUFFIXES = (".pcd", ".ply", ".bin")
 SINGLE_SUFFIXES = (*SWEEP_SUFFIXES, ".las", ".laz")
-#: field names taken as the ring / beam index, in order of preference
-RING_FIELDS = ("ring", "channel", "laser_id", "laser_number", "laser", "beam", "line")
+#: field names taken as the ring / beam index, in order of preference (not Livox's ``line``: the
+#: laser of a non-repetitive pattern, whose points of one laser do not form a scan line)
+RING_FIELDS = ("ring", "channel", "laser_id", "laser_number", "laser", "beam")
 #: field names taken as per-point times, in order of preference
 TIME_FIELDS = ("t", "time", "timestamp", "offset_time", "time_stamp", "time_offset", "gps_time")
 INTENSITY_FIELDS = ("intensity", "reflectivity", "remission", "signal")
@@ -430,6 +431,71 @@ def times_in_seconds(values: np.ndarray, name: str, source: str) -> tuple[np.nda
     return t * scale, scale
 
 
+def _line_extent(lines: np.ndarray) -> float:
+    """Median over the lines of ``lines`` (L, M, 3) (NaN or zeros: no return) of the angle a
+    line covers: the larger of its net azimuth travel (signed steps summed, so that the
+    azimuth offsets of staggered beams cancel) and its elevation range (5-95 %); NaN when no
+    line has 8 returns."""
+    x, y, z = lines[..., 0], lines[..., 1], lines[..., 2]
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(lines).all(axis=2) & ((x != 0) | (y != 0) | (z != 0))
+    az = np.arctan2(y, x)
+    el = np.arctan2(z, np.hypot(x, y))
+    extents = []
+    for k in range(len(lines)):  # a few dozen sampled lines
+        v = ok[k]
+        if v.sum() < 8:
+            continue
+        a, e = az[k, v], el[k, v]
+        travel = abs(float(np.angle(np.exp(1j * np.diff(a))).sum()))
+        lo, hi = np.percentile(e, [5.0, 95.0])
+        extents.append(max(travel, float(hi - lo)))
+    return float(np.median(extents)) if extents else float("nan")
+
+
+def rows_are_scan_lines(grid: np.ndarray, lines: int = 32, points: int = 512) -> bool:
+    """Whether an organised cloud ``(H, W, 3)`` (zeros or NaN: no return) has scan lines as rows.
+
+    An organised cloud's rows are scan lines: a spinning sensor's rings (the azimuth goes round
+    the circle along a row, the elevation changes by one beam gap from row to row), a
+    profiler's lines, a solid-state sensor's wide lines. A driver may also write one firing per
+    row (``HEIGHT`` = columns, ``WIDTH`` = beams): a row then covers only the vertical field of
+    view and a column the whole circle. The rows are taken as scan lines when a row covers at
+    least the angle a column covers (azimuth travel or elevation range, see
+    :func:`_line_extent`; measured on up to ``lines`` rows and columns, each sampled at up to
+    ``points`` evenly spaced slots)."""
+    g = np.asarray(grid)[..., :3]
+    H, W = g.shape[:2]
+    if H < 2 or W < 2:
+        return True
+
+    def pick(n: int, k: int) -> np.ndarray:
+        return np.unique(np.linspace(0, n - 1, min(n, k)).astype(np.int64))
+
+    rows = g[pick(H, lines)][:, pick(W, points)].astype(np.float64)
+    cols = g[:, pick(W, lines)][pick(H, points)].transpose(1, 0, 2).astype(np.float64)
+    along_rows, down_cols = _line_extent(rows), _line_extent(cols)
+    if not (np.isfinite(along_rows) and np.isfinite(down_cols)):
+        return True  # too few returns to tell: keep the file's organisation
+    return along_rows >= down_cols
+
+
+def sweep_relative(times: np.ndarray) -> bool:
+    """True when one sweep's per-point times (s) count from the sweep's start or to its end
+    (Ouster ``t``, Livox ``offset_time``: 0 .. period; Velodyne ``time``: -period .. 0) rather
+    than on a clock shared by the sweeps: within a second of zero, with one end of the span
+    nearer to zero than half the span (a sweep on a shared clock starting at 0 is sweep 0,
+    whose start time is then 0 either way)."""
+    finite = np.asarray(times, dtype=np.float64)
+    finite = finite[np.isfinite(finite)]
+    if len(finite) == 0:
+        return False
+    lo, hi = float(finite.min()), float(finite.max())
+    if max(abs(lo), abs(hi)) >= 1.0:
+        return False
+    return min(abs(lo), abs(hi)) <= 0.5 * (hi - lo) + 1e-6
+
+
 def _pick(fields: dict[str, np.ndarray], names: tuple[str, ...]) -> str | None:
     lower = {k.lower(): k for k in fields}
     return next((lower[n] for n in names if n in lower), None)
@@ -497,9 +563,50 @@ class SweepFolder(SequenceBase):
             if len(t) != len(self.files):
                 raise DataError(f"{times_file}: {len(t)} times for {len(self.files)} sweeps")
             self.times = t
+        self.sweep_period = float(sweep_period)
+        self._period: float | None = None  # sweep spacing for per-point times relative to each sweep
+        self._row_lines: dict[tuple[int, int], bool] = {}  # organised grid shape -> rows are scan lines
         self.organizer = Organizer(
             rows=rows, cols=cols, altitude=altitude, method=method, source_name=str(path), sweep_period=sweep_period
         )
+
+    def _relative_period(self, times: np.ndarray, name: str) -> float:
+        """The period that spaces sweeps whose per-point times are relative to each sweep (no
+        ``times.txt``): ``sweep_period``, or the first such sweep's time span when longer (a slower
+        sensor; sweeps cannot overlap). Decided once per folder, with one warning."""
+        if self._period is None:
+            span = float(np.nanmax(times) - np.nanmin(times))
+            self._period = max(self.sweep_period, span) if np.isfinite(span) else self.sweep_period
+            log.warning(
+                "%s: per-point times (%r) restart with every sweep and there is no times.txt: sweep i is "
+                "taken to start at i x %g s (put a times.txt with one time per sweep beside them for true times)",
+                self.root,
+                name,
+                self._period,
+            )
+        return self._period
+
+    def _rows_are_lines(self, xyz: np.ndarray, ring: np.ndarray | None, height: int, width: int, source: str) -> bool:
+        """Whether an organised sweep's rows are scan lines (decided once per grid shape, with one
+        warning when they are not: its points are then organised as an unorganised cloud, from
+        the ring field when it has one, else from the point order or the beams)."""
+        key = (height, width)
+        if key not in self._row_lines:
+            why = None
+            if ring is not None and not (ring.reshape(height, width) == ring.reshape(height, width)[:, :1]).all():
+                why = "the ring field varies along its rows"
+            elif not rows_are_scan_lines(xyz.reshape(height, width, 3)):
+                why = "its directions sweep less along a row than down a column (one firing per row?)"
+            self._row_lines[key] = why is None
+            if why is not None:
+                log.warning(
+                    "%s: organised cloud of %d x %d whose rows are not scan lines (%s): organised from its points",
+                    source,
+                    height,
+                    width,
+                    why,
+                )
+        return self._row_lines[key]
 
     def fields(self, i: int) -> dict[str, np.ndarray]:
         """The raw fields of sweep ``i`` (every point, file order): for writers that keep them."""
@@ -521,12 +628,20 @@ class SweepFolder(SequenceBase):
             frame_time = float(self.times[i])
             if times is not None and float(np.nanmax(times)) < 1.0:  # relative per-point times
                 times = times + frame_time
+        elif times is not None and sweep_relative(times):
+            # times from the sweep's start (Ouster t, Livox offset_time) or to its end (Velodyne
+            # time <= 0): every sweep would start at the same time; sweep i starts at i periods
+            frame_time = i * self._relative_period(times, time_name)
+            times = times + frame_time
         elif times is not None:
             frame_time = float(np.nanmin(times))
         intensity = None
         if inten_name is not None and fields[inten_name].ndim == 1:
             intensity = np.asarray(fields[inten_name], dtype=np.float32)
-        if height > 1:
+        ring = None
+        if ring_name is not None and fields[ring_name].ndim == 1:
+            ring = np.asarray(fields[ring_name]).astype(np.int64)
+        if height > 1 and self._rows_are_lines(xyz, ring, height, width, src):
             grid = xyz.reshape(height, width, 3)
             return self.organizer.scan_organized(
                 grid,
@@ -536,9 +651,6 @@ class SweepFolder(SequenceBase):
                 source=src,
                 frame_time=frame_time,
             )
-        ring = None
-        if ring_name is not None and fields[ring_name].ndim == 1:
-            ring = np.asarray(fields[ring_name]).astype(np.int64)
         return self.organizer.scan(
             xyz, ring=ring, times=times, intensity=intensity, name=path.stem, source=src, frame_time=frame_time
         )

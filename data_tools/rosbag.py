@@ -49,8 +49,9 @@ DATATYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "
 DATATYPE_CODES = {v: k for k, v in DATATYPES.items()}
 #: Per-point time fields, in order of preference.
 TIME_FIELDS = ("t", "time", "timestamp", "timestamps", "time_stamp", "offset_time", "time_offset", "stamps")
-#: Ring / channel fields, in order of preference.
-RING_FIELDS = ("ring", "channel", "laser_id", "ring_id", "laser_number", "line")
+#: Ring / channel fields, in order of preference (not Livox's ``line``: the laser of a
+#: non-repetitive pattern, whose points of one laser do not form a scan line).
+RING_FIELDS = ("ring", "channel", "laser_id", "ring_id", "laser_number")
 #: Intensity fields, in order of preference.
 INTENSITY_FIELDS = ("intensity", "reflectivity", "remission", "i", "signal")
 #: Candidate time units (seconds per count), coarsest first.
@@ -342,8 +343,13 @@ def cloud_to_scan(
     name: str,
     source: str,
     time_field: TimeField | None = None,
+    row_lines: dict[tuple[int, int], bool] | None = None,
 ) -> Scan:
     """Organise one decoded cloud into a :class:`Scan` (see the module docstring).
+
+    ``row_lines`` caches, per ``(height, width)``, whether an organised cloud's rows are scan
+    lines (:func:`data_tools.pcd.rows_are_scan_lines`; a sequence passes one dict for all its
+    clouds, so that the check runs once per grid shape).
 
     The Scan's ``meta["ros"]`` keeps the decoded message (raw bytes, fields, header) so that
     a writer can emit the same points with a label field added.
@@ -362,6 +368,24 @@ def cloud_to_scan(
         if not (grid == grid[:, :1]).all():  # rows are not rings (e.g. one firing per row): organise the points
             organised = False
             log.info("%s: organised cloud whose rows are not rings; organised from its %s field", source, ring_name)
+    if organised and ring is None:  # one firing per row (height = columns, width = beams)?
+        from data_tools.pcd import rows_are_scan_lines
+
+        key = (cloud.height, cloud.width)
+        lines = row_lines.get(key) if row_lines is not None else None
+        if lines is None:
+            lines = rows_are_scan_lines(xyz.reshape(cloud.height, cloud.width, 3))
+            if not lines:
+                log.warning(
+                    "%s: organised cloud of %d x %d whose rows are not scan lines (its directions cover less "
+                    "along a row than down a column: one firing per row?): organised from its points",
+                    source,
+                    cloud.height,
+                    cloud.width,
+                )
+            if row_lines is not None:
+                row_lines[key] = lines
+        organised = lines
     if organised:
         h, w = cloud.height, cloud.width
         scan = organizer.scan_organized(
@@ -511,6 +535,7 @@ class RosbagSequence:
         self.period = period if period and period > 0 else None
         self._time_field: TimeField | bool | None = False  # False: not yet decided
         self._organizer = organizer
+        self._row_lines: dict[tuple[int, int], bool] = {}  # organised grid shape -> rows are scan lines
 
     @property
     def organizer(self) -> Any:
@@ -620,7 +645,9 @@ class RosbagSequence:
             if self._time_field is not None:
                 log.info("%s: per-point time from field %s", self.path, self._time_field.describe())
         tf = self._time_field if isinstance(self._time_field, TimeField) else None
-        scan = cloud_to_scan(cloud, self.organizer, name=f"{i:06d}", source=self._source(i), time_field=tf)
+        scan = cloud_to_scan(
+            cloud, self.organizer, name=f"{i:06d}", source=self._source(i), time_field=tf, row_lines=self._row_lines
+        )
         scan.meta["log_time_ns"] = int(self.log_times[i])
         scan.meta["topic"] = self.topic
         scan.meta["frame_index"] = i

@@ -33,12 +33,30 @@ from prc_slam.cli.common import (
     console,
     handles_errors,
     input_options,
+    log,
     print_table,
     run_config,
     variant_list,
     variant_table,
     wrote,
 )
+
+
+def warn_failed(metrics: dict) -> None:
+    """One warning per odometry variant that stopped before the last frame (otherwise only
+    the JSON's ``failed`` and the table's frame count would tell)."""
+    total = metrics.get("frames")
+    for name, m in metrics.get("variants", {}).items():
+        if m.get("failed"):
+            of = f" of {total}" if total is not None else ""
+            log.warning(
+                "odometry %s stopped at frame %s%s: %s; its trajectory holds the %s poses before",
+                name,
+                m.get("failed_at_frame"),
+                of,
+                m.get("failure_reason", "failed"),
+                m.get("frames"),
+            )
 
 
 def register(app: typer.Typer) -> None:
@@ -120,6 +138,7 @@ def compare(
             **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip
     written = run.written + write_outputs(run, cfg, out, f"Odometry comparison on {input}")
+    warn_failed(run.metrics)
     print_table(variant_table(run.metrics, f"odometry on {input}"))
     if run.prc is not None and "per_class" in run.prc:
         print_table(class_table(run.prc, "PRC labels against the reference"))
@@ -187,6 +206,7 @@ def odometry(
             reporter=reporter, **input_options(topic, meta, model, rows, cols, organize=organize),
         )  # fmt: skip
     written = list(run.written)
+    warn_failed(run.metrics)
     if poses_out is not None:
         written.append(trajectory_file(run, name, poses_out, pose_format.value))
     print_table(variant_table(run.metrics, f"odometry on {input}"))
