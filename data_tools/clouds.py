@@ -5,6 +5,7 @@ memory-mapped).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -14,6 +15,31 @@ from data_tools.errors import DataError
 from data_tools.laz import laz_backend
 
 CLOUD_SUFFIXES = (".las", ".laz", ".ply", ".pcd", ".npy")
+#: a horizontal extent below this (in the file's units) with a vertical one 100 times larger,
+#: within +-180 / +-90: geographic degrees, not metres
+DEGREE_EXTENT = 0.05
+#: LAS scales (m) coarser than this lose the structure map classification looks at
+COARSE_SCALE = 0.05
+
+log = logging.getLogger("prc_slam.readers")
+_warned_coarse: set[str] = set()
+
+
+def check_metric(path: Path, lo: np.ndarray, hi: np.ndarray) -> None:
+    """Raise :class:`DataError` when the bounding box ``lo``..``hi`` (x, y, z) looks like
+    longitude / latitude in degrees with heights in metres (a geographic CRS): every step
+    after would take 1e-5 degrees for 1e-5 metres."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        return
+    ext = hi - lo
+    horiz = float(max(ext[0], ext[1]))
+    in_degrees = abs(lo[0]) <= 180 and abs(hi[0]) <= 180 and abs(lo[1]) <= 90 and abs(hi[1]) <= 90
+    if in_degrees and horiz < DEGREE_EXTENT and float(ext[2]) > 100 * max(horiz, 1e-12):
+        raise DataError(
+            f"{path}: x/y look like geographic degrees (x {lo[0]:.6f}..{hi[0]:.6f}, y {lo[1]:.6f}..{hi[1]:.6f}, "
+            f"z spans {ext[2]:.1f}): reproject the cloud to a metric CRS (e.g. UTM) first"
+        )
 
 
 def is_cloud_file(path: str | Path) -> bool:
@@ -74,10 +100,22 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
         try:
             with laspy.open(path, laz_backend=backend) as f:
                 expected = int(f.header.point_count)
+                if expected:
+                    check_metric(path, f.header.mins, f.header.maxs)
+                    scale = float(np.max(f.header.scales))
+                    if scale > COARSE_SCALE and str(path) not in _warned_coarse:
+                        _warned_coarse.add(str(path))  # once per file (the cloud may be read twice)
+                        log.warning(
+                            "%s: coordinates are quantised to %g (the LAS scale): structure finer than that is lost",
+                            path,
+                            scale,
+                        )
                 seen = 0
                 for pts in f.chunk_iterator(chunk):
                     seen += len(pts)
                     yield np.column_stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)])
+        except DataError:
+            raise
         except (laspy.LaspyException, ValueError, OSError, RuntimeError) as e:  # lazrs errors are RuntimeErrors
             raise DataError(f"{path}: not a readable LAS file ({e})") from e
         if seen != expected:
@@ -95,6 +133,10 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
         xyz = np.column_stack([fields["x"], fields["y"], fields["z"]])
     else:
         xyz = _check(path, _open3d_points(path))
+    if len(xyz):
+        finite = np.isfinite(xyz).all(axis=1)
+        if finite.any():
+            check_metric(path, np.min(xyz[finite], axis=0), np.max(xyz[finite], axis=0))
     for i in range(0, len(xyz), chunk):
         yield np.asarray(xyz[i : i + chunk], dtype=np.float64)
 
