@@ -341,16 +341,32 @@ def read_ply(path: str | Path) -> dict[str, np.ndarray]:
 
 
 def read_bin(path: str | Path) -> dict[str, np.ndarray]:
-    """A KITTI-layout ``.bin``: float32 ``x y z intensity`` per point."""
+    """A KITTI-layout ``.bin``: float32 ``x y z intensity`` per point; nuScenes' ``x y z intensity
+    ring`` (:func:`looks_like_ring_bin`) adds a ``ring`` field."""
     path = Path(path)
     try:
         raw = np.fromfile(path, dtype="<f4")
     except OSError as exc:
         raise DataError(f"{path}: cannot read: {exc}") from exc
+    if raw.size and looks_like_ring_bin(raw):
+        pts = raw.reshape(-1, 5)
+        return {"x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2], "intensity": pts[:, 3], "ring": pts[:, 4]}
     if raw.size % 4:
         raise DataError(f"{path}: truncated: {path.stat().st_size} bytes is not a whole number of 16-byte points")
     pts = raw.reshape(-1, 4)
     return {"x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2], "intensity": pts[:, 3]}
+
+
+def looks_like_ring_bin(raw: np.ndarray) -> bool:
+    """Whether a flat float32 ``.bin`` holds nuScenes' five values per point (x y z intensity
+    ring, ``*.pcd.bin``) rather than KITTI's four: a whole number of 20-byte points whose fifth
+    value is a small whole number (a beam index) for every point. Read as five values, KITTI's
+    four-value points put x, y, z and intensity in turn in that place: never all whole."""
+    if raw.size % 5:
+        return False
+    ring = raw[4::5]
+    with np.errstate(invalid="ignore"):
+        return bool(np.all((ring >= 0) & (ring < 1024) & (ring == np.floor(ring))))
 
 
 def read_las_fields(path: str | Path) -> dict[str, np.ndarray]:
