@@ -582,6 +582,7 @@ class SweepFolder(SequenceBase):
         self.sweep_period = float(sweep_period)
         self._period: float | None = None  # sweep spacing for per-point times relative to each sweep
         self._row_lines: dict[tuple[int, int], bool] = {}  # organised grid shape -> rows are scan lines
+        self._clock_warned = False  # per-point times on another clock than times.txt (warned once)
         self.organizer = Organizer(
             rows=rows, cols=cols, altitude=altitude, method=method, source_name=str(path), sweep_period=sweep_period
         )
@@ -644,6 +645,20 @@ class SweepFolder(SequenceBase):
             frame_time = float(self.times[i])
             if times is not None and float(np.nanmax(times)) < 1.0:  # relative per-point times
                 times = times + frame_time
+            elif times is not None and abs(float(np.nanmin(times)) - frame_time) > 1.0:
+                # per-point times on another clock than times.txt (e.g. epoch s beside times from
+                # 0): keep their offsets within the sweep, start the sweep at its times.txt time
+                if not self._clock_warned:
+                    self._clock_warned = True
+                    log.warning(
+                        "%s: per-point times (%r, from %.6f s) are on another clock than times.txt (%.6f s): "
+                        "each sweep's point times are shifted to start at its times.txt time",
+                        src,
+                        time_name,
+                        float(np.nanmin(times)),
+                        frame_time,
+                    )
+                times = times - float(np.nanmin(times)) + frame_time
         elif times is not None and sweep_relative(times):
             # times from the sweep's start (Ouster t, Livox offset_time) or to its end (Velodyne
             # time <= 0): every sweep would start at the same time; sweep i starts at i periods

@@ -358,3 +358,21 @@ def test_kitti_four_value_bins_stay_four_values(tmp_path):
     pts.tofile(tmp_path / "000000.bin")
     fields = read_bin(tmp_path / "000000.bin")
     assert set(fields) == {"x", "y", "z", "intensity"} and len(fields["x"]) == 100
+
+
+def test_point_times_on_another_clock_than_times_txt_are_rebased(tmp_path, caplog):
+    """times.txt from 0 beside per-point epoch times: before, the scans carried frame times 0.1 s
+    apart and point times 1.7e9 s (odometry then stopped: 'registration impossible')."""
+    col_t = np.arange(720) * 0.1 / 720
+    for i in range(3):
+        write_room_sweeps(tmp_path, 1, {"timestamp": (1.7e9 + i * 0.1 + col_t)[None, :]})
+        (tmp_path / "000000.pcd").rename(tmp_path / f"s{i}.pcd")
+    np.savetxt(tmp_path / "times.txt", [0.0, 0.1, 0.2])
+    seq = SweepFolder(tmp_path)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
+        scans = [seq[i] for i in range(3)]
+    for i, s in enumerate(scans):
+        t = s.point_times()
+        assert s.meta["frame_time"] == pytest.approx(0.1 * i)
+        assert 0.1 * i - 1e-6 <= np.nanmin(t) and np.nanmax(t) <= 0.1 * i + 0.1 + 1e-6
+    assert sum("another clock" in r.getMessage() for r in caplog.records) == 1
