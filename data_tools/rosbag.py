@@ -58,6 +58,8 @@ INTENSITY_FIELDS = ("intensity", "reflectivity", "remission", "i", "signal")
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: Values above this (s) are absolute epoch times, below it offsets from the header stamp.
 ABSOLUTE_TIME_S = 1e6
+#: Point times further than this (s) from the header stamp at both ends of a sweep are on another clock.
+CLOCK_MISMATCH_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -294,19 +296,44 @@ class TimeField:
     unit: str
     scale: float
     absolute: bool
+    #: sweeps whose point times were on another clock than the header stamps (warned once)
+    rebased: int = 0
 
     def describe(self) -> str:
         return f"{self.name} [{self.unit}, {'absolute' if self.absolute else 'relative to the header stamp'}]"
 
-    def seconds(self, cloud: CloudMessage) -> np.ndarray:
-        """Absolute time (s) of every point, ``float64 (N,)``."""
+    def seconds(self, cloud: CloudMessage, source: str = "") -> np.ndarray:
+        """Absolute time (s) of every point, ``float64 (N,)``.
+
+        Point times more than :data:`CLOCK_MISMATCH_S` from the header stamp at both ends of the
+        sweep are on another clock (a sensor's own epoch or uptime beside ROS time): their
+        offsets within the sweep are kept and the sweep is put to start at the header stamp,
+        with one warning per sequence (frame and point times must share one clock)."""
         raw = _column(cloud.points, self.name)
         if raw.dtype.kind in "iu" and raw.size:  # offset from the smallest value first: exact in float64
             base = raw.min()
             v = (raw - base).astype(np.float64) * self.scale + float(base) * self.scale
         else:
             v = raw.astype(np.float64) * self.scale
-        return v if self.absolute else v + cloud.stamp
+        if not self.absolute:
+            v = v + cloud.stamp
+        finite = v[np.isfinite(v)]
+        if finite.size:
+            lo, hi = float(finite.min()), float(finite.max())
+            if min(abs(lo - cloud.stamp), abs(hi - cloud.stamp)) > CLOCK_MISMATCH_S:
+                if not self.rebased:
+                    log.warning(
+                        "%s: per-point times (%s) start at %.6f s, %.1f s from the header stamp %.6f s: another "
+                        "clock; each sweep's point times are shifted to start at its header stamp",
+                        source or "cloud",
+                        self.describe(),
+                        lo,
+                        lo - cloud.stamp,
+                        cloud.stamp,
+                    )
+                self.rebased += 1
+                v = v - lo + cloud.stamp
+        return v
 
 
 def detect_time_field(cloud: CloudMessage, period: float | None) -> TimeField | None:
@@ -356,7 +383,7 @@ def cloud_to_scan(
     """
     xyz = cloud_xyz(cloud)
     names = cloud.names
-    times = time_field.seconds(cloud) if time_field is not None else None
+    times = time_field.seconds(cloud, source) if time_field is not None else None
     inten_name = _first(names, INTENSITY_FIELDS)
     intensity = _column(cloud.points, inten_name).astype(np.float32) if inten_name else None
     frame_time = cloud.stamp

@@ -376,3 +376,45 @@ def test_point_times_on_another_clock_than_times_txt_are_rebased(tmp_path, caplo
         assert s.meta["frame_time"] == pytest.approx(0.1 * i)
         assert 0.1 * i - 1e-6 <= np.nanmin(t) and np.nanmax(t) <= 0.1 * i + 0.1 + 1e-6
     assert sum("another clock" in r.getMessage() for r in caplog.records) == 1
+
+
+def ros_sweep(time_values: np.ndarray, stamp_ns: int):
+    """A 16-beam sweep as a Velodyne-layout PointCloud2 (x y z ring timestamp[f8]), firing order."""
+    grid = spinning_grid(16, 720)
+    pts = np.swapaxes(grid, 0, 1).reshape(-1, 3)
+    ok = np.isfinite(pts).all(axis=1)
+    dt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("ring", "<u2"), ("timestamp", "<f8")])
+    rec = np.zeros(int(ok.sum()), dt)
+    rec["x"], rec["y"], rec["z"] = pts[ok].T
+    rec["ring"] = np.tile(np.arange(16), 720)[ok]
+    rec["timestamp"] = np.repeat(time_values, 16)[ok]
+    return cloud_from_records(rec, stamp_ns=stamp_ns)
+
+
+@pytest.mark.parametrize("base", [1.2e9, 5000.0])  # another epoch; the sensor's uptime
+def test_ros_point_times_on_another_clock_start_at_the_header_stamp(base, caplog):
+    """Before: point times 5e8 s before (or 5000 s after) the header stamp; odometry stopped at
+    frame 2 ('registration impossible')."""
+    from data_tools.rosbag import detect_time_field
+
+    col_t = np.arange(720) * 0.1 / 720
+    stamp_ns = 1_700_000_000 * 10**9
+    cloud = ros_sweep(base + col_t, stamp_ns)
+    tf = detect_time_field(cloud, 0.1)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.rosbag"):
+        scan = cloud_to_scan(cloud, Organizer(), name="0", source="mem", time_field=tf)
+        cloud_to_scan(ros_sweep(base + 0.1 + col_t, stamp_ns + 10**8), Organizer(), name="1", source="m", time_field=tf)
+    t = scan.point_times()
+    assert np.nanmin(t) == pytest.approx(1.7e9, abs=1e-6)
+    assert np.nanmax(t) - np.nanmin(t) == pytest.approx(col_t[-1], abs=1e-6)
+    assert sum("another clock" in r.getMessage() for r in caplog.records) == 1 and tf.rebased == 2
+
+
+def test_ros_point_times_relative_to_the_sweep_end_are_kept():
+    from data_tools.rosbag import detect_time_field
+
+    col_t = np.arange(720) * 0.1 / 720 - 0.1  # Velodyne driver: s before the stamp (sweep end)
+    cloud = ros_sweep(col_t, 1_700_000_000 * 10**9)
+    tf = detect_time_field(cloud, 0.1)
+    t = cloud_to_scan(cloud, Organizer(), name="0", source="mem", time_field=tf).point_times()
+    assert np.nanmax(t) == pytest.approx(1.7e9 - 0.1 / 720, abs=1e-6) and tf.rebased == 0
