@@ -384,6 +384,8 @@ class OdometryVariants:
                 for k in run.ms:  # stage times of the frames with a pose only
                     del run.ms[k][run.frames :]
                 del run.hidden[run.frames :]
+                if run.hidden:  # the credit for this frame's PRC, no longer charged
+                    run.hidden[-1] = 0.0
                 continue
             if window:
                 busy[name] = (t0, t2)
