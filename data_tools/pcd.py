@@ -583,9 +583,41 @@ class SweepFolder(SequenceBase):
         self._period: float | None = None  # sweep spacing for per-point times relative to each sweep
         self._row_lines: dict[tuple[int, int], bool] = {}  # organised grid shape -> rows are scan lines
         self._clock_warned = False  # per-point times on another clock than times.txt (warned once)
+        self._narrow_warned = False  # a float32 time field too narrow for its values (warned once)
         self.organizer = Organizer(
             rows=rows, cols=cols, altitude=altitude, method=method, source_name=str(path), sweep_period=sweep_period
         )
+
+    def _time_resolved(self, values: np.ndarray, name: str) -> bool:
+        """False (with one warning) for a floating-point time field too narrow for its values: a
+        float32 epoch time (1.7e9 s) has a resolution of 128 s, so every point and every sweep
+        would get the same time. Frame times then come from ``times.txt`` or the sweep order."""
+        v = np.asarray(values)
+        if v.dtype.kind != "f" or v.dtype.itemsize >= 8 or v.size == 0:
+            return True
+        finite = v[np.isfinite(v)]
+        if finite.size == 0:
+            return True
+        top = float(np.max(np.abs(finite)))
+        resolution = float(np.spacing(v.dtype.type(top)))
+        if top < 1e4:  # times relative to the sweep (or its end): float32 resolves them to 1 ms
+            return True
+        # larger values, in an unknown unit: usable when they resolve 1/1000 of the sweep's span
+        span = float(finite.max() - finite.min())
+        if span > 0 and resolution <= 1e-3 * span:
+            return True
+        if not self._narrow_warned:
+            self._narrow_warned = True
+            log.warning(
+                "%s: time field %r is %s with values near %.6g: its resolution (%g) cannot time the points; "
+                "ignored (frame times from times.txt, else from the sweep order)",
+                self.root,
+                name,
+                v.dtype,
+                top,
+                resolution,
+            )
+        return False
 
     def _relative_period(self, times: np.ndarray, name: str) -> float:
         """The period that spaces sweeps whose per-point times are relative to each sweep (no
@@ -638,7 +670,7 @@ class SweepFolder(SequenceBase):
         time_name = _pick(fields, TIME_FIELDS)
         inten_name = _pick(fields, INTENSITY_FIELDS)
         times = None
-        if time_name is not None and fields[time_name].ndim == 1:
+        if time_name is not None and fields[time_name].ndim == 1 and self._time_resolved(fields[time_name], time_name):
             times, _ = times_in_seconds(fields[time_name], time_name, src)
         frame_time = None
         if self.times is not None:

@@ -418,3 +418,31 @@ def test_ros_point_times_relative_to_the_sweep_end_are_kept():
     tf = detect_time_field(cloud, 0.1)
     t = cloud_to_scan(cloud, Organizer(), name="0", source="mem", time_field=tf).point_times()
     assert np.nanmax(t) == pytest.approx(1.7e9 - 0.1 / 720, abs=1e-6) and tf.rebased == 0
+
+
+def test_float32_epoch_time_field_is_ignored_with_a_warning(tmp_path, caplog):
+    """A float32 'timestamp' of epoch seconds (resolution 128 s): before, every point and every
+    sweep got the same time and odometry stopped at frame 1 ('does not follow')."""
+    col_t = np.arange(720) * 0.1 / 720
+    for i in range(2):
+        write_room_sweeps(tmp_path, 1, {"timestamp": (1.7e9 + i * 0.1 + col_t).astype(np.float32)[None, :]})
+        (tmp_path / "000000.pcd").rename(tmp_path / f"s{i}.pcd")
+    seq = SweepFolder(tmp_path)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
+        scans = [seq[i] for i in range(2)]
+    assert all(s.timestamps is None for s in scans)
+    assert sum("cannot time the points" in r.getMessage() for r in caplog.records) == 1
+
+
+@pytest.mark.parametrize(
+    "values",
+    [
+        (np.arange(720) * 0.1 / 720).astype(np.float32),  # s from the sweep start
+        (np.arange(720) * 0.1 / 720 * 1e9).astype(np.float32),  # ns as float32
+    ],
+)
+def test_float32_relative_time_fields_are_kept(tmp_path, values):
+    write_room_sweeps(tmp_path, 1, {"time": values[None, :]})
+    scan = SweepFolder(tmp_path)[0]
+    t = scan.point_times()
+    assert t is not None and np.nanmax(t) - np.nanmin(t) == pytest.approx(0.1 * 719 / 720, abs=1e-5)
