@@ -626,6 +626,20 @@ class RosbagSequence:
             raise DataError(f"{self.path}: topic {self.topic} holds no messages")
         self.log_times = np.asarray(log_times, dtype=np.int64)
         self.times = np.asarray(stamps, dtype=np.float64)
+        stuck = np.flatnonzero(np.diff(self.times) <= 0) + 1
+        if len(stuck):  # odometry needs increasing frame times: say so before it stops there
+            k = int(stuck[0])
+            log.warning(
+                "%s: %d of %d header stamps of %s do not increase (first: message %d at %.6f s after %.6f s); "
+                "odometry stops at such a frame",
+                self.path,
+                len(stuck),
+                len(self.times),
+                self.topic,
+                k,
+                self.times[k],
+                self.times[k - 1],
+            )
         # position of each message among those sharing its log time (for seeking)
         self._dup = np.zeros(len(log_times), dtype=np.int64)
         for i in range(1, len(log_times)):

@@ -446,3 +446,21 @@ def test_float32_relative_time_fields_are_kept(tmp_path, values):
     scan = SweepFolder(tmp_path)[0]
     t = scan.point_times()
     assert t is not None and np.nanmax(t) - np.nanmin(t) == pytest.approx(0.1 * 719 / 720, abs=1e-5)
+
+
+def test_recording_whose_header_stamps_repeat_is_warned_on_opening(tmp_path, caplog):
+    """A driver that stamps two sweeps alike: odometry stops at the second; the reader says so
+    when it opens the recording (before: nothing until the odometry's own failure)."""
+    from data_tools.rosbag import RosbagSequence
+    from data_tools.stream_out import RosCloudWriter
+
+    col_t = np.arange(720) * 0.1 / 720 - 0.1
+    stamps = [10**18, 10**18 + 10**8, 10**18 + 10**8]
+    with RosCloudWriter(tmp_path / "r.bag", "ros1", "/points") as w:
+        for k, st in enumerate(stamps):
+            w.write_cloud(ros_sweep(col_t, st), log_time_ns=st + k)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.rosbag"):
+        seq = RosbagSequence(tmp_path / "r.bag")
+    assert len(seq) == 3
+    lines = [r.getMessage() for r in caplog.records if "do not increase" in r.getMessage()]
+    assert len(lines) == 1 and "1 of 3 header stamps" in lines[0] and "message 2" in lines[0]
