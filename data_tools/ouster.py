@@ -96,6 +96,13 @@ def ouster_scan(
     if rng.ndim != 2:
         raise DataError(f"{source}: range_mm must be 2-D, got shape {rng.shape}")
     rows, cols = rng.shape
+    if rng.dtype.kind == "f":  # millimetres are whole numbers (the sensor's uint32 field)
+        fin = rng[np.isfinite(rng) & (rng > 0)]
+        if fin.size and (fin != np.round(fin)).mean() > 0.5:
+            raise DataError(
+                f"{source}: range_mm holds fractional values (median {float(np.median(fin)):.4g}): metres? "
+                "it must hold whole millimetres (uint32, 0 = no return)"
+            )
     arrays = {
         "beam_altitude_deg": np.asarray(beam_altitude_deg),
         "beam_azimuth_deg": np.asarray(beam_azimuth_deg),

@@ -464,3 +464,20 @@ def test_recording_whose_header_stamps_repeat_is_warned_on_opening(tmp_path, cap
     assert len(seq) == 3
     lines = [r.getMessage() for r in caplog.records if "do not increase" in r.getMessage()]
     assert len(lines) == 1 and "1 of 3 header stamps" in lines[0] and "message 2" in lines[0]
+
+
+# ------------------------------------------------------------------ Ouster npz
+
+
+def test_ouster_npz_with_ranges_in_metres_is_refused(ouster_files, tmp_path):
+    """range_mm converted to float metres by a user: before, read as millimetres (every point
+    within 0.15 m: 97.8 % ground, no warning)."""
+    from data_tools.ouster import read_ouster_npz
+
+    data = dict(np.load(ouster_files[0]))
+    whole_mm = dict(data, range_mm=data["range_mm"].astype(np.float64))  # floats of whole mm: fine
+    np.savez(tmp_path / "mm.npz", **whole_mm)
+    assert read_ouster_npz(tmp_path / "mm.npz").valid.sum() == (data["range_mm"] > 0).sum()
+    np.savez(tmp_path / "m.npz", **dict(data, range_mm=data["range_mm"].astype(np.float32) / 1000))
+    with pytest.raises(DataError, match="metres"):
+        read_ouster_npz(tmp_path / "m.npz")
