@@ -10,6 +10,7 @@ map back to every input point in input order.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,8 @@ from data_tools.sequence import SequenceBase
 from data_tools.trajectory_io import read_kitti_poses, read_times
 from prc_slam import labels as L
 from prc_slam.scan import Scan
+
+log = logging.getLogger("prc_slam.readers")
 
 SWEEP_PERIOD = 0.1
 
@@ -119,6 +122,7 @@ class KittiSequence(SequenceBase):
             raise DataError(f"{velo}: no .bin files")
         self.name = self.root.name
         self.clockwise = clockwise
+        self._units_checked = False  # the first sweep read is checked for metres
         self.sweep_period = float(sweep_period)
         self.organizer = Organizer(
             rows=rows, cols=cols, altitude=altitude, method=method, source_name=str(self.root),
@@ -149,6 +153,18 @@ class KittiSequence(SequenceBase):
     def __getitem__(self, i: int) -> Scan:
         path = self.files[i]
         pts = read_velodyne_bin(path, allow_nonfinite=True)
+        if not self._units_checked:
+            from data_tools.pcd import implausible_units
+
+            self._units_checked = True
+            med = implausible_units(pts[:, :3])
+            if med is not None:
+                log.warning(
+                    "%s: the returns' median range is %.0f: the coordinates are not in metres (millimetres? "
+                    "centimetres?); every threshold is in metres: convert the bins first",
+                    path,
+                    med,
+                )
         t0 = float(self.times[i]) if self.times is not None else i * self.sweep_period
         gt_point = gt_inst = None
         label_path = self.root / "labels" / (path.stem + ".label")

@@ -496,6 +496,24 @@ def rows_are_scan_lines(grid: np.ndarray, lines: int = 32, points: int = 512) ->
     return along_rows >= down_cols
 
 
+#: a sweep whose median range exceeds this (in the file's units) is not in metres
+IMPLAUSIBLE_MEDIAN_RANGE = 1000.0
+
+
+def implausible_units(xyz: np.ndarray, sample: int = 20000) -> float | None:
+    """The median range of a sweep's returns (on a strided sample) when it exceeds
+    :data:`IMPLAUSIBLE_MEDIAN_RANGE` (a sweep in millimetres or centimetres: every metre-based
+    threshold downstream would be off by 100-1000x), else None."""
+    pts = np.asarray(xyz)[:: max(1, len(xyz) // sample)]
+    with np.errstate(invalid="ignore", over="ignore"):
+        r = np.sqrt(np.sum(np.asarray(pts, np.float64) ** 2, axis=1))
+    r = r[np.isfinite(r) & (r > 0)]
+    if len(r) < 100:
+        return None
+    med = float(np.median(r))
+    return med if med > IMPLAUSIBLE_MEDIAN_RANGE else None
+
+
 def sweep_relative(times: np.ndarray) -> bool:
     """True when one sweep's per-point times (s) count from the sweep's start or to its end
     (Ouster ``t``, Livox ``offset_time``: 0 .. period; Velodyne ``time``: -period .. 0) rather
@@ -584,6 +602,7 @@ class SweepFolder(SequenceBase):
         self._row_lines: dict[tuple[int, int], bool] = {}  # organised grid shape -> rows are scan lines
         self._clock_warned = False  # per-point times on another clock than times.txt (warned once)
         self._narrow_warned = False  # a float32 time field too narrow for its values (warned once)
+        self._units_checked = False  # the first sweep read is checked for metres
         self.organizer = Organizer(
             rows=rows, cols=cols, altitude=altitude, method=method, source_name=str(path), sweep_period=sweep_period
         )
@@ -626,13 +645,14 @@ class SweepFolder(SequenceBase):
         if self._period is None:
             span = float(np.nanmax(times) - np.nanmin(times))
             self._period = max(self.sweep_period, span) if np.isfinite(span) else self.sweep_period
-            log.warning(
-                "%s: per-point times (%r) restart with every sweep and there is no times.txt: sweep i is "
-                "taken to start at i x %g s (put a times.txt with one time per sweep beside them for true times)",
-                self.root,
-                name,
-                self._period,
-            )
+            if len(self.files) > 1:  # one sweep: its start at 0 s is all there is to say
+                log.warning(
+                    "%s: per-point times (%r) restart with every sweep and there is no times.txt: sweep i is "
+                    "taken to start at i x %g s (put a times.txt with one time per sweep beside them for true times)",
+                    self.root,
+                    name,
+                    self._period,
+                )
         return self._period
 
     def _rows_are_lines(self, xyz: np.ndarray, ring: np.ndarray | None, height: int, width: int, source: str) -> bool:
@@ -666,6 +686,16 @@ class SweepFolder(SequenceBase):
         fields, (height, width) = read_sweep_fields(path)
         src = str(path)
         xyz = np.column_stack([fields["x"], fields["y"], fields["z"]]).astype(np.float64)
+        if not self._units_checked:
+            self._units_checked = True
+            med = implausible_units(xyz)
+            if med is not None:
+                log.warning(
+                    "%s: the returns' median range is %.0f: the coordinates are not in metres (millimetres? "
+                    "centimetres?); every threshold is in metres: convert the sweeps first",
+                    src,
+                    med,
+                )
         ring_name = _pick(fields, RING_FIELDS)
         time_name = _pick(fields, TIME_FIELDS)
         inten_name = _pick(fields, INTENSITY_FIELDS)
