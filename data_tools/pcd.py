@@ -665,7 +665,7 @@ class SweepFolder(SequenceBase):
             if ring is not None and not (ring.reshape(height, width) == ring.reshape(height, width)[:, :1]).all():
                 why = "the ring field varies along its rows"
             elif not rows_are_scan_lines(xyz.reshape(height, width, 3)):
-                why = "its directions sweep less along a row than down a column (one firing per row?)"
+                why = "its directions cover less along a row than down a column: one firing per row?"
             self._row_lines[key] = why is None
             if why is not None:
                 log.warning(
