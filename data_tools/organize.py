@@ -55,6 +55,10 @@ from prc_slam.threads import in_threads
 log = logging.getLogger("prc_slam.organize")
 
 METHODS = ("auto", "ring", "order", "beams")
+
+#: fewer returns than this share of the range image's slots: its rings or columns are implausible
+#: (a spinning sweep fills most of them; a camera-FOV crop of 30 deg still fills 8 %)
+MIN_OCCUPANCY = 0.03
 TWO_PI = 2.0 * np.pi
 
 #: cost (in beam gaps) of giving a run the row of the run before it in a ring-major sweep (a ring
@@ -682,6 +686,13 @@ def _fill_empty_times(t, rep, col_t, rows, cols):
 # ----------------------------------------------------------------------------- beam tables
 
 
+def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(a, axis=1)``, NaN for rows without a finite value and no warning about them."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # "All-NaN slice encountered": a row without returns
+        return np.nanmedian(a, axis=1)
+
+
 def _beam_bounds(beam_te: np.ndarray) -> np.ndarray:
     """Interval bounds (tangent space, descending) between consecutive beams (sorted top first),
     at the mid-angle between them."""
@@ -801,7 +812,8 @@ def _elevation_sharpness(z, rho, n, kernel, h, u):
         ay = abs(z[i])
         a = min(x, ay) / max(x, ay)
         q = a * a
-        r = (((((-0.0117212 * q + 0.05265332) * q - 0.11643287) * q + 0.19354346) * q - 0.33262347) * q + 0.99997726) * a
+        r = ((((-0.0117212 * q + 0.05265332) * q - 0.11643287) * q + 0.19354346) * q - 0.33262347) * q
+        r = (r + 0.99997726) * a
         r = 1.5707963267948966 - r if ay > x else r
         u[i] = (-r if z[i] < 0.0 else r) * scale + 90.0 / 0.005
     lo = bins
@@ -1108,8 +1120,7 @@ class Organizer:
         a0 = float(np.angle(np.exp(1j * (az[ok] - c_az[ok])).mean()))
         offs = np.zeros(H)
         resid = np.where(ok, np.angle(np.exp(1j * (az - c_az - a0))), np.nan).reshape(H, W)
-        with np.errstate(all="ignore"):
-            offs_raw = np.nanmedian(resid, axis=1)
+        offs_raw = _nanmedian_rows(resid)
         offs[inv] = np.nan_to_num(offs_raw)
         slot = np.repeat(inv, W) * W + col  # no-return points keep their own (empty) slot
         rep = np.full(H * W, -1, np.int64)
@@ -1175,21 +1186,56 @@ class Organizer:
                 raise DataError(f"{source}: the ring field holds non-integer values")
             ring = ring.astype(np.int64)
         ids, inv = np.unique(ring[ok], return_inverse=True)
-        if self.ring_ids is None or not np.isin(ids, self.ring_ids).all():
-            med = np.array([np.median(te[ok][inv == k]) for k in range(len(ids))])  # once per sequence
-            if self.ring_ids is not None:
-                new = ~np.isin(ids, self.ring_ids)
-                warnings.append(f"{source}: ring ids {ids[new].tolist()[:8]} not seen before; beam table rebuilt")
-            self.ring_ids = ids[np.argsort(-med, kind="stable")]
-            self.beam_te = np.sort(med)[::-1]
-            if self.expected_rows is None:
-                self.expected_rows = len(ids)
-        lut_ids = self.ring_ids
-        order = np.argsort(lut_ids)
-        pos = np.searchsorted(lut_ids[order], ring[ok])
-        row = np.full(len(ok), -1, np.int64)
-        row[ok] = order[pos]
+        if self.ring_ids is not None and not np.isin(ids, self.ring_ids).all():
+            new = ~np.isin(ids, self.ring_ids)
+            warnings.append(f"{source}: ring ids {ids[new].tolist()[:8]} not seen before; beam table rebuilt")
+            self.ring_ids = None
+        for _ in range(2):
+            if self.ring_ids is None:
+                med = np.array([np.median(te[ok][inv == k]) for k in range(len(ids))])  # once per sequence
+                self.ring_ids = ids[np.argsort(-med, kind="stable")]
+                self.beam_te = np.sort(med)[::-1]
+                if self.expected_rows is None:
+                    self.expected_rows = len(ids)
+                fresh = True
+            else:
+                fresh = False
+            lut_ids = self.ring_ids
+            order = np.argsort(lut_ids)
+            pos = np.searchsorted(lut_ids[order], ring[ok])
+            row = np.full(len(ok), -1, np.int64)
+            row[ok] = order[pos]
+            if fresh or self._rings_at_their_elevations(row, ok, te):
+                break
+            warnings.append(
+                f"{source}: the ring ids are no longer at the elevations of the first sweep's (renumbered?); "
+                "beam table rebuilt from this sweep"
+            )
+            self.ring_ids = None
         return row, len(lut_ids)
+
+    def _rings_at_their_elevations(self, row, ok, te, every: int = 16) -> bool:
+        """Whether the rings of a sweep (rows from the ring field) still lie at their rows' beam
+        elevations: the median elevation of every ``every``-th return per row within half the
+        gap to the neighbouring beams, for at least three quarters of the rows with 8 samples or
+        more (a ring field renumbered between sweeps would silently scramble the rows)."""
+        rows = len(self.beam_te)
+        if rows < 2:
+            return True
+        idx = np.flatnonzero(ok)[::every]
+        r, t = row[idx], te[idx]
+        sort = np.lexsort((t, r))
+        cnt = np.bincount(r, minlength=rows)
+        start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+        used = cnt >= 8
+        if not used.any():
+            return True
+        med = np.arctan(t[sort][start[used] + cnt[used] // 2])
+        beams = np.arctan(self.beam_te)
+        gap = np.abs(np.diff(beams))
+        half = 0.5 * np.minimum(np.append(gap, np.inf), np.append(np.inf, gap))
+        off = np.abs(med - beams[used]) > half[used]
+        return off.sum() <= 0.25 * used.sum()
 
     def _rows_ring_major(self, ok, rng, az, te, source, warnings):
         s = self._order_direction
@@ -1397,8 +1443,13 @@ class Organizer:
             )
         if expected is not None and found < 0.75 * expected:
             warnings.append(f"{source}: {found} rings found, the sensor has {expected}")
-        if expected is not None and rows > expected:
+        if expected is not None and rows != expected and found >= 0.75 * expected:
             warnings.append(f"{source}: {rows} beams found, the sensor has {expected}")
+        if n_ok > 1000 and n_ok < MIN_OCCUPANCY * rows * cols:
+            warnings.append(
+                f"{source}: only {100 * n_ok / (rows * cols):.1f}% of the {rows} x {cols} range image's slots hold a "
+                f"point (method {method}): the rings or the column count are likely wrong"
+            )
         if rows and empty > 0.25 * rows:
             warnings.append(f"{source}: {empty} of {rows} rows hold no point")
         for w in warnings:

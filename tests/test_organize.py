@@ -481,3 +481,35 @@ def test_nearest_beam_counts_the_bounds_at_or_above(bounds, te):
     row = _nearest_beam(t, ok, b, np.empty(len(t), np.int64))
     expected = np.where(ok, (b[None, :] >= t[:, None]).sum(axis=1), -1)
     np.testing.assert_array_equal(row, expected)
+
+
+def test_ring_ids_renumbered_between_sweeps_are_caught():
+    """A driver that numbers the rings by laser id in one sweep and by elevation in the next: the
+    ids are the same set, so the first sweep's table would scramble the rows without a word."""
+    xyz, beam, _ = spinning_sweep(rings=16, cols=720, seed=9)
+    laser_id = np.array([0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13, 6, 14, 7, 15])  # VLP-16-like interleaving
+    org = Organizer()
+    first = org.scan(xyz, ring=laser_id[beam], source="0.pcd")
+    assert first.meta["organize"]["warnings"] == []
+    second = org.scan(xyz, ring=beam, source="1.pcd")  # now numbered top beam first
+    assert any("1.pcd: the ring ids are no longer at the elevations" in w for w in second.meta["organize"]["warnings"])
+    row = second.point_slot // second.shape[1]
+    np.testing.assert_array_equal(row, beam)  # rows by elevation, as the first sweep's
+    third = org.scan(xyz, ring=beam, source="2.pcd")
+    assert third.meta["organize"]["warnings"] == []  # the rebuilt table holds
+
+
+def test_rows_other_than_the_sensors_beams_are_warned():
+    xyz, *_ = spinning_sweep(rings=16, cols=720, seed=8)
+    scan = Organizer(rows=18).scan(xyz, source="x.bin")  # two beams short of --rows, not a quarter
+    assert any("16 beams found, the sensor has 18" in w for w in scan.meta["organize"]["warnings"])
+
+
+def test_a_range_image_almost_empty_is_warned():
+    """A column count far above the sweep's firings (a wrong --cols, or one estimated from a ring
+    field that is no ring, as Livox's 'line'): no slot is shared, but almost every slot is empty."""
+    xyz, *_ = spinning_sweep(rings=16, cols=720, seed=10)
+    rep = Organizer(cols=100_000).scan(xyz, source="x.pcd").meta["organize"]
+    assert rep["collisions_pct"] == 0.0
+    assert any("x.pcd: only 0.6% of the 16 x 100000 range image's slots hold a point" in w for w in rep["warnings"])
+    assert Organizer(cols=720).scan(xyz, source="x.pcd").meta["organize"]["warnings"] == []
