@@ -302,7 +302,8 @@ class Pipeline:
     on_frame : callable, optional
         Called after the sinks for every frame (progress bars).
     warn : callable(str), optional
-        Receives every warning (organiser, skipped frames); defaults to the module logger.
+        Receives every warning (organiser, skipped frames); defaults to the module logger (the
+        organiser's warnings are then only in its own log, not repeated).
 
     Examples
     --------
@@ -329,6 +330,7 @@ class Pipeline:
         self.sinks = list(sinks)
         self.on_frame = on_frame
         self.warn = warn or log.warning
+        self.warn_organizer = warn is not None
 
     def _readable(self, scans: Iterable[Scan], result: PipelineResult) -> Iterator[Scan]:
         """The scans that could be read; the others are skipped with a warning and counted."""
@@ -361,8 +363,9 @@ class Pipeline:
         warnings = org.get("warnings") or []
         if warnings:
             agg["warnings"] = agg.get("warnings", 0) + len(warnings)
-            for w in warnings:
-                self.warn(w if source in w else f"{source}: {w}")
+            if self.warn_organizer:  # else the organiser has logged them already
+                for w in warnings:
+                    self.warn(w if source in w else f"{source}: {w}")
 
     def _classified(self, scans: Iterable[Scan]) -> Iterator[ClassifiedFrame]:
         if self.prc is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from data_tools.sim.simulator import SimConfig, Simulator
 from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
 from prc_slam import labels as L
 from prc_slam.config import Config, PRCConfig
+from prc_slam.jobs.odometry import trajectory_file
 from prc_slam.odometry import classaware
 from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry, GroupVoxelMap, icp
 from prc_slam.odometry.compare import run_compare
@@ -158,6 +160,9 @@ def test_injected_failure_stops_one_variant_and_leaves_the_others_identical(shor
     report = (out / "report.md").read_text()
     assert "**FAILED at frame 5**" in report and "prc+classaware (failed)" in report
     assert len(np.loadtxt(out / "prc+classaware_poses_kitti.txt")) == 5
+    # the odometry command's TUM file of the failed variant: its 5 poses with their 5 times
+    tum = trajectory_file(SimpleNamespace(result=res), "prc+classaware", out / "ca_tum.txt", "tum")
+    np.testing.assert_allclose(np.loadtxt(tum)[:, 0], res.times[:5])
     assert len(np.loadtxt(out / "raw_poses_tum.txt")) == 12
     assert (out / "trajectories.png").is_file() and json.loads((out / "metrics.json").read_text())
 

@@ -146,5 +146,5 @@ def trajectory_file(run: OdometryRun, name: str, path: Path, pose_format: str = 
     if pose_format == "kitti":
         write_kitti_poses(path, poses)
     else:
-        write_tum_poses(path, run.result.times, poses)
+        write_tum_poses(path, run.result.times[: len(poses)], poses)  # a failed variant's poses stop early
     return path
