@@ -19,6 +19,7 @@ from data_tools.errors import DataError
 from data_tools.organize import Organizer
 from data_tools.sequence import SequenceBase
 from data_tools.trajectory_io import read_kitti_poses, read_times
+from data_tools.units import implausible_units
 from prc_slam import labels as L
 from prc_slam.scan import Scan
 
@@ -154,8 +155,6 @@ class KittiSequence(SequenceBase):
         path = self.files[i]
         pts = read_velodyne_bin(path, allow_nonfinite=True)
         if not self._units_checked:
-            from data_tools.pcd import implausible_units
-
             self._units_checked = True
             med = implausible_units(pts[:, :3])
             if med is not None:

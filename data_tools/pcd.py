@@ -28,6 +28,7 @@ from numba import njit
 
 from data_tools.errors import DataError
 from data_tools.sequence import SequenceBase
+from data_tools.units import implausible_units
 from prc_slam.scan import Scan
 
 log = logging.getLogger("prc_slam.readers")
@@ -494,24 +495,6 @@ def rows_are_scan_lines(grid: np.ndarray, lines: int = 32, points: int = 512) ->
     if not (np.isfinite(along_rows) and np.isfinite(down_cols)):
         return True  # too few returns to tell: keep the file's organisation
     return along_rows >= down_cols
-
-
-#: a sweep whose median range exceeds this (in the file's units) is not in metres
-IMPLAUSIBLE_MEDIAN_RANGE = 1000.0
-
-
-def implausible_units(xyz: np.ndarray, sample: int = 20000) -> float | None:
-    """The median range of a sweep's returns (on a strided sample) when it exceeds
-    :data:`IMPLAUSIBLE_MEDIAN_RANGE` (a sweep in millimetres or centimetres: every metre-based
-    threshold downstream would be off by 100-1000x), else None."""
-    pts = np.asarray(xyz)[:: max(1, len(xyz) // sample)]
-    with np.errstate(invalid="ignore", over="ignore"):
-        r = np.sqrt(np.sum(np.asarray(pts, np.float64) ** 2, axis=1))
-    r = r[np.isfinite(r) & (r > 0)]
-    if len(r) < 100:
-        return None
-    med = float(np.median(r))
-    return med if med > IMPLAUSIBLE_MEDIAN_RANGE else None
 
 
 def sweep_relative(times: np.ndarray) -> bool:

@@ -149,7 +149,7 @@ class CompareResult:
             m["first_suspicious_frame"] = None if first is None else first[0]
             m["first_suspicious_reason"] = None if first is None else first[1]
             m["per_frame"] = {
-                "ms": ms.tolist(),
+                "ms_wall": ms.tolist(),
                 "inliers": [h.inliers for h in health],
                 "source_points": [h.source_points for h in health],
                 "inlier_fraction": [h.inlier_fraction for h in health],
