@@ -21,6 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from prc_slam import labels as L
 from prc_slam.prc import PRCStream, prc_block
 from prc_slam.prc.config import PRCConfig
 from prc_slam.prc.ground import GroundState
@@ -126,6 +127,24 @@ def _complete(pending: list, blocks: list) -> list[tuple[Scan, np.ndarray, np.nd
         scan, _, labels, one_sided = pending.pop(0)
         out.append((scan, labels, one_sided))
     return out
+
+
+#: a frame with this share of its returns in one PRC class is reported (no real sweep is all
+#: ground or all noise; a wrong sensor model or unit is)
+ONE_CLASS_SHARE = 0.99
+
+
+def one_class(labels: np.ndarray, ranges: np.ndarray, min_returns: int = 1000) -> tuple[str, float] | None:
+    """``(class name, percent)`` when one class holds :data:`ONE_CLASS_SHARE` or more of a frame's
+    returns (slots with a range; frames of at least ``min_returns``), else None."""
+    codes = np.asarray(labels)[np.asarray(ranges) > 0]
+    if len(codes) < min_returns:
+        return None
+    counts = np.bincount(codes.ravel(), minlength=256)
+    top = int(np.argmax(counts))
+    if counts[top] < ONE_CLASS_SHARE * len(codes):
+        return None
+    return L.names([top])[0], 100.0 * counts[top] / len(codes)
 
 
 _END = object()
@@ -239,6 +258,7 @@ class PipelineResult:
     nonfinite_points: int = 0
     empty_frames: int = 0
     frames_without_ground: int = 0
+    frames_one_class: int = 0  # frames with ONE_CLASS_SHARE of their returns or more in one class
     prc_seconds: float = 0.0
     online_seconds: float = 0.0
     online_seconds_first: float = 0.0
@@ -260,6 +280,8 @@ class PipelineResult:
         }
         if self.frames_without_ground:
             out["frames_without_ground"] = self.frames_without_ground
+        if self.frames_one_class:
+            out["frames_one_class"] = self.frames_one_class
         if self.skipped:
             out["skips"] = [{"index": s.index, "source": s.source, "reason": s.reason} for s in self.skipped]
         if self.organize:
@@ -399,6 +421,13 @@ class Pipeline:
                 elif frame.ground_error is not None:
                     result.frames_without_ground += 1
                     self.warn(f"{scan.source}: PRC found no ground model: {frame.ground_error}")
+                if frame.labels is not None and (one := one_class(frame.labels, scan.ranges)) is not None:
+                    result.frames_one_class += 1
+                    if result.frames_one_class == 1:  # once per run; the count is in the summary
+                        self.warn(
+                            f"{scan.source}: PRC put {one[1]:.1f}% of the returns in one class ({one[0]}): the "
+                            "sensor model or the units are likely wrong for this input"
+                        )
                 step = PipelineFrame(index, frame)
                 if self.online is not None:
                     step.online = self.online.process(scan)

@@ -5,6 +5,7 @@ logs every stage of every frame into one recording."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,8 +15,17 @@ from typer.testing import CliRunner
 from data_tools import open_dataset
 from data_tools.sim.dataset import write_sequence
 from data_tools.sim.simulator import SimConfig, Simulator
+from prc_slam import labels as L
 from prc_slam.cli import app
-from prc_slam.pipeline import FrameError, NextFrame, Pipeline, PipelineFrame, PipelineResult, classify_frames
+from prc_slam.pipeline import (
+    FrameError,
+    NextFrame,
+    Pipeline,
+    PipelineFrame,
+    PipelineResult,
+    classify_frames,
+    one_class,
+)
 from prc_slam.prc.config import PRCConfig
 
 runner = CliRunner()
@@ -185,3 +195,27 @@ def test_next_frame_made_beside_the_caller_comes_back_in_order_with_its_errors()
     with pytest.raises(FrameError, match=r"000003\.bin: truncated"):  # raised again in this thread
         ahead.take()
     assert ahead.take() is None and ahead.take() is None  # the end, for good
+
+
+def test_one_class_by_hand():
+    ranges = np.ones((10, 200), np.float32)
+    ranges[0, :100] = 0.0  # no returns: not counted
+    labels = np.full((10, 200), L.NOISE, np.uint8)
+    labels[0, :100] = L.GROUND
+    assert one_class(labels, ranges) == ("noise", 100.0)
+    labels[1, :19] = L.GROUND  # 19 of 1900 returns: 99.0 % noise
+    assert one_class(labels, ranges)[0] == "noise"
+    labels[1, 19] = L.GROUND  # 20 of 1900: under 99 %
+    assert one_class(labels, ranges) is None
+    assert one_class(labels[:2], ranges[:2]) is None  # too few returns to tell
+
+
+def test_a_run_with_one_class_everywhere_is_warned(hdl64):
+    """Sweeps in millimetres: the paper's metric thresholds call every return noise."""
+    scans = [replace(s, ranges=s.ranges * 1000.0) for s in open_dataset(hdl64)]
+    warnings: list[str] = []
+    result = Pipeline(prc=PRCConfig.preset("urban"), warn=warnings.append).run(iter(scans))
+    assert result.frames_one_class == len(scans) and result.summary()["frames_one_class"] == len(scans)
+    assert len([w for w in warnings if "of the returns in one class (noise)" in w]) == 1  # once per run
+    plain = Pipeline(prc=PRCConfig.preset("urban")).run(open_dataset(hdl64))
+    assert plain.frames_one_class == 0 and "frames_one_class" not in plain.summary()
