@@ -44,11 +44,11 @@ def parse_keep_labels(values: Sequence[str | int] | str | None) -> list[int] | N
             if item.isdigit():
                 code = int(item)
                 if code not in L.CODE_TO_NAME:
-                    raise ValueError(f"unknown label code {code}; known: {sorted(L.CODE_TO_NAME)}")
+                    raise ValueError(f"--keep-labels: unknown label code {code}; known: {sorted(L.CODE_TO_NAME)}")
             elif item in L.NAME_TO_CODE:
                 code = L.NAME_TO_CODE[item]
             else:
-                raise ValueError(f"unknown label {item!r}; choose from {', '.join(L.NAME_TO_CODE)}")
+                raise ValueError(f"--keep-labels: unknown label {item!r}; choose from {', '.join(L.NAME_TO_CODE)}")
             codes.append(code)
     if not codes:
         raise ValueError("--keep-labels names no label")

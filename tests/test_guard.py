@@ -212,3 +212,17 @@ def test_overlap_changes_no_pose_and_charges_the_wall_time(short_drive):
     assert m["ms_overlapped"] == pytest.approx(hidden.mean())
     assert m["ms_per_frame"] == pytest.approx(m["ms_per_frame_serial"] - hidden.mean())
     assert m["per_frame"]["ms_wall"] == pytest.approx(prc.ms_per_frame().tolist())
+
+
+def test_point_times_on_another_clock_are_named():
+    """Per-point times in epoch seconds beside frame times from 0: a clear reason, not an empty
+    registration after deskewing every point kilometres away."""
+    rng = np.random.default_rng(3)
+    pts = _room(rng)
+    odo = KissOdometry(OdometryConfig())
+    times = 1.7e9 + np.linspace(0.0, 0.1, len(pts))
+    with pytest.raises(OdometryFailure, match=r"times lie 1\.7e\+09 s from the frame's time 0\.000000 s: not on one"):
+        odo.register(pts, times, frame_time=0.0)
+    ok = KissOdometry(OdometryConfig())
+    ok.register(pts, np.linspace(0.0, 0.1, len(pts)), frame_time=0.05)  # one clock: registered
+    assert len(ok.poses) == 1

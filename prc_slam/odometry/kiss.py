@@ -266,6 +266,14 @@ class GuardedOdometry:
         pts, times, dropped = finite_points(pts, times)
         pts = np.ascontiguousarray(pts, dtype=np.float64)
         t_ref = self.clock.next(frame_time, times)
+        if times is not None and len(times):
+            lo, hi = float(np.min(times)), float(np.max(times))
+            far = max(abs(lo - t_ref), abs(hi - t_ref))
+            if far > max(10.0, 10.0 * (hi - lo), 10.0 * self.clock.last_interval()):
+                raise OdometryFailure(
+                    f"the points' times lie {far:.4g} s from the frame's time {t_ref:.6f} s: not on one clock "
+                    "(check the reader's time field, or give the frames' times)"
+                )
         return pts, times, dropped, t_ref, self.clock.last_interval()
 
     def _deskew(self, pts, times, t_ref, last_delta):
