@@ -56,6 +56,10 @@ log = logging.getLogger("prc_slam.organize")
 
 METHODS = ("auto", "ring", "order", "beams")
 
+#: points farther than this (m) are no returns (a placeholder such as 3e38 for "no return", not a
+#: measurement: it would otherwise form a ring of its own)
+MAX_RANGE = 1e5
+
 #: fewer returns than this share of the range image's slots: its rings or columns are implausible
 #: (a spinning sweep fills most of them; a camera-FOV crop of 30 deg still fills 8 %)
 MIN_OCCUPANCY = 0.03
@@ -167,7 +171,8 @@ def _atan2(y, x):
 
 @njit(cache=True, nogil=True)
 def _polar(xyz, offset, ok, rng, az, te, cloud, small=0.7853981633974483):
-    """Per point: has a return, range, azimuth (rad, (-pi, pi]) and the tangent of the beam
+    """Per point: has a return (finite, not at the origin, nearer than :data:`MAX_RANGE`), range,
+    azimuth (rad, (-pi, pi]) and the tangent of the beam
     elevation ``z / (rho - offset)``, ``offset`` being the horizontal distance of the beam
     origins from the sensor axis (Ouster: ``lidar_origin_to_beam_origin``; 0 for decoders
     that give points from one origin). Along the input order also: the share of azimuth
@@ -187,7 +192,7 @@ def _polar(xyz, offset, ok, rng, az, te, cloud, small=0.7853981633974483):
         z = float(xyz[i, 2])
         rho2 = x * x + y * y
         r2 = rho2 + z * z
-        good = math.isfinite(r2) and r2 > 0.0
+        good = math.isfinite(r2) and r2 > 0.0 and r2 < MAX_RANGE * MAX_RANGE
         ok[i] = good
         if good:
             cloud[i, 0] = x
@@ -1042,13 +1047,17 @@ class Organizer:
         self._order = _polar(xyz, self.beam_offset, ok, rng, az, te, cloud)
         n_ok = int(ok.sum())
         if n_ok == 0:
-            raise DataError(f"{source}: no point with a return ({n} points, all NaN/inf or at the origin)")
+            raise DataError(
+                f"{source}: no point with a return ({n} points, all NaN/inf, at the origin or beyond 100 km)"
+            )
         if times is not None:
             times = np.asarray(times, dtype=np.float64)
             if not np.isfinite(times[ok]).all():
                 raise DataError(f"{source}: non-finite per-point times")
         if n_ok < n:
-            warnings.append(f"{source}: {n - n_ok} of {n} points have no return (NaN/inf or at the origin); label 0")
+            warnings.append(
+                f"{source}: {n - n_ok} of {n} points have no return (NaN/inf, at the origin or beyond 100 km); label 0"
+            )
 
         method, row, rows = self._rows(xyz, ok, rng, az, te, ring, times, source, warnings)
         s, a0 = self._direction(az, ok, row, times, method, source)

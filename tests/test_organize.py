@@ -513,3 +513,17 @@ def test_a_range_image_almost_empty_is_warned():
     assert rep["collisions_pct"] == 0.0
     assert any("x.pcd: only 0.6% of the 16 x 100000 range image's slots hold a point" in w for w in rep["warnings"])
     assert Organizer(cols=720).scan(xyz, source="x.pcd").meta["organize"]["warnings"] == []
+
+
+def test_points_beyond_100_km_are_no_returns():
+    """A placeholder coordinate (3e38) is no measurement: without the bound it made a ring of its own."""
+    xyz, beam, _ = spinning_sweep(rings=16, cols=720, seed=11)
+    far = np.array([[1.0, 2.0, 3e38], [3e38, 0.0, 0.0], [0.0, -3e38, 1.0]] * 40, np.float32)
+    scan = Organizer().scan(np.vstack([xyz, far]), source="far.pcd")
+    rep = scan.meta["organize"]
+    assert rep["rings"] == 16 and rep["cols"] == 720
+    assert any("far.pcd: 120 of" in w and "beyond 100 km" in w for w in rep["warnings"])
+    row = scan.point_slot[: len(xyz)] // scan.shape[1]
+    np.testing.assert_array_equal(row, beam)
+    assert len(scan.point_slot) == len(xyz) + len(far)  # every point keeps a slot
+    assert (scan.ranges.ravel()[scan.point_slot[len(xyz) :]] == 0).all()  # an empty one
