@@ -316,6 +316,19 @@ def test_metric_map_clouds_are_read(tmp_path, offset):
     np.testing.assert_allclose(xyz, np.column_stack([x + offset[0], y + offset[1], z]), atol=1e-3)
 
 
+def test_an_empty_map_cloud_is_an_error(tmp_path):
+    """Before: exit 0 with empty outputs and not a word."""
+    import laspy
+    from typer.testing import CliRunner
+
+    from prc_slam.cli import app
+
+    path = tmp_path / "empty.las"
+    laspy.LasData(laspy.LasHeader(point_format=6, version="1.4")).write(path)
+    res = CliRunner().invoke(app, ["mapclass", str(path), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2 and "empty.las: the cloud holds no points" in res.output
+
+
 def test_coarse_las_scale_is_warned_once(tmp_path, caplog):
     from data_tools.clouds import cloud_chunks
 

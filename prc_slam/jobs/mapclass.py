@@ -138,6 +138,7 @@ def mapclass_job(
     A LAS/LAZ file that carries classes of its own (beyond 0 and 1) is scored against them
     (``reference=None``: when it has them; True: required; False: never)."""
     from data_tools.clouds import cloud_chunks, cloud_classes, cloud_size, is_cloud_file
+    from data_tools.errors import DataError
     from prc_slam.jobs.common import open_input
     from prc_slam.mapclass.tiles import array_chunks
 
@@ -147,8 +148,11 @@ def mapclass_job(
         if reference and own is None:
             raise ValueError(f"--reference: {input} carries no classes to score against")
         ref, inst = own if own is not None else (None, None)
+        size = cloud_size(input)
+        if size == 0:
+            raise DataError(f"{input}: the cloud holds no points")
         metrics = classify_map(
-            lambda: cloud_chunks(input), cloud_size(input), cfg, out, tile, margin, ref, inst, viewer=viewer,
+            lambda: cloud_chunks(input), size, cfg, out, tile, margin, ref, inst, viewer=viewer,
             reporter=reporter, laz=laz, tiler=tiler,
         )  # fmt: skip
         if own is not None and note is not None:
