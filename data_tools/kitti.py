@@ -10,7 +10,6 @@ map back to every input point in input order.
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import numpy as np
@@ -19,11 +18,9 @@ from data_tools.errors import DataError
 from data_tools.organize import Organizer
 from data_tools.sequence import SequenceBase
 from data_tools.trajectory_io import read_kitti_poses, read_times
-from data_tools.units import implausible_units
+from data_tools.units import warn_unless_metres
 from prc_slam import labels as L
 from prc_slam.scan import Scan
-
-log = logging.getLogger("prc_slam.readers")
 
 SWEEP_PERIOD = 0.1
 
@@ -156,14 +153,7 @@ class KittiSequence(SequenceBase):
         pts = read_velodyne_bin(path, allow_nonfinite=True)
         if not self._units_checked:
             self._units_checked = True
-            med = implausible_units(pts[:, :3])
-            if med is not None:
-                log.warning(
-                    "%s: the returns' median range is %.0f: the coordinates are not in metres (millimetres? "
-                    "centimetres?); every threshold is in metres: convert the bins first",
-                    path,
-                    med,
-                )
+            warn_unless_metres(pts[:, :3], path, "bins")
         t0 = float(self.times[i]) if self.times is not None else i * self.sweep_period
         gt_point = gt_inst = None
         label_path = self.root / "labels" / (path.stem + ".label")

@@ -28,7 +28,7 @@ from numba import njit
 
 from data_tools.errors import DataError
 from data_tools.sequence import SequenceBase
-from data_tools.units import implausible_units
+from data_tools.units import warn_unless_metres
 from prc_slam.scan import Scan
 
 log = logging.getLogger("prc_slam.readers")
@@ -671,14 +671,7 @@ class SweepFolder(SequenceBase):
         xyz = np.column_stack([fields["x"], fields["y"], fields["z"]]).astype(np.float64)
         if not self._units_checked:
             self._units_checked = True
-            med = implausible_units(xyz)
-            if med is not None:
-                log.warning(
-                    "%s: the returns' median range is %.0f: the coordinates are not in metres (millimetres? "
-                    "centimetres?); every threshold is in metres: convert the sweeps first",
-                    src,
-                    med,
-                )
+            warn_unless_metres(xyz, src)
         ring_name = _pick(fields, RING_FIELDS)
         time_name = _pick(fields, TIME_FIELDS)
         inten_name = _pick(fields, INTENSITY_FIELDS)

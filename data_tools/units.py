@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
+
+log = logging.getLogger("prc_slam.readers")
 
 #: a sweep whose median range exceeds this (in the file's units) is not in metres
 IMPLAUSIBLE_MEDIAN_RANGE = 1000.0
@@ -20,3 +24,16 @@ def implausible_units(xyz: np.ndarray, sample: int = 20000) -> float | None:
         return None
     med = float(np.median(r))
     return med if med > IMPLAUSIBLE_MEDIAN_RANGE else None
+
+
+def warn_unless_metres(xyz: np.ndarray, source: str, what: str = "sweeps") -> None:
+    """Warn (naming ``source``) when :func:`implausible_units` finds the sweep not in metres."""
+    med = implausible_units(xyz)
+    if med is not None:
+        log.warning(
+            "%s: the returns' median range is %.0f: the coordinates are not in metres (millimetres? "
+            "centimetres?); every threshold is in metres: convert the %s first",
+            source,
+            med,
+            what,
+        )
