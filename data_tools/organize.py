@@ -806,21 +806,14 @@ def _elevation_sharpness(z, rho, n, kernel, h, u):
     kernel's reach around them) are visited. ``h`` (zeros, ``ELEVATION_BINS`` + the kernel's
     width) and ``u`` (one entry per point) are work arrays; ``h`` is left zeroed.
 
-    The bins are first taken from :func:`_atan2`'s polynomial (within 2e-6 rad, 2 % of a bin) in a loop
-    that vectorises; the points within 5 % of a bin's edge are binned again with ``arctan``,
-    so every bin is the one ``arctan`` gives (``rho - n > 0`` here)."""
+    The bins are first taken from :func:`_atan2` (within 2e-6 rad, 2 % of a bin, without
+    libm's arctan); the points within 5 % of a bin's edge are binned again with ``arctan``, so
+    every bin is the one ``arctan`` gives."""
     bins = ELEVATION_BINS
     half = kernel.shape[0] // 2
     scale = 180.0 / np.pi / 0.005
-    for i in range(z.shape[0]):  # _atan2 for x > 0, without branches
-        x = rho[i] - n
-        ay = abs(z[i])
-        a = min(x, ay) / max(x, ay)
-        q = a * a
-        r = ((((-0.0117212 * q + 0.05265332) * q - 0.11643287) * q + 0.19354346) * q - 0.33262347) * q
-        r = (r + 0.99997726) * a
-        r = 1.5707963267948966 - r if ay > x else r
-        u[i] = (-r if z[i] < 0.0 else r) * scale + 90.0 / 0.005
+    for i in range(z.shape[0]):
+        u[i] = _atan2(z[i], rho[i] - n) * scale + 90.0 / 0.005
     lo = bins
     hi = -1
     for i in range(z.shape[0]):
@@ -1199,29 +1192,33 @@ class Organizer:
             new = ~np.isin(ids, self.ring_ids)
             warnings.append(f"{source}: ring ids {ids[new].tolist()[:8]} not seen before; beam table rebuilt")
             self.ring_ids = None
-        for _ in range(2):
-            if self.ring_ids is None:
-                med = np.array([np.median(te[ok][inv == k]) for k in range(len(ids))])  # once per sequence
-                self.ring_ids = ids[np.argsort(-med, kind="stable")]
-                self.beam_te = np.sort(med)[::-1]
-                if self.expected_rows is None:
-                    self.expected_rows = len(ids)
-                fresh = True
-            else:
-                fresh = False
-            lut_ids = self.ring_ids
-            order = np.argsort(lut_ids)
-            pos = np.searchsorted(lut_ids[order], ring[ok])
-            row = np.full(len(ok), -1, np.int64)
-            row[ok] = order[pos]
-            if fresh or self._rings_at_their_elevations(row, ok, te):
-                break
+        if self.ring_ids is None:
+            self._ring_table(ids, inv, ok, te)
+            return self._ring_rows(ring, ok), len(self.ring_ids)
+        row = self._ring_rows(ring, ok)
+        if not self._rings_at_their_elevations(row, ok, te):
             warnings.append(
                 f"{source}: the ring ids are no longer at the elevations of the first sweep's (renumbered?); "
                 "beam table rebuilt from this sweep"
             )
-            self.ring_ids = None
-        return row, len(lut_ids)
+            self._ring_table(ids, inv, ok, te)
+            row = self._ring_rows(ring, ok)
+        return row, len(self.ring_ids)
+
+    def _ring_table(self, ids, inv, ok, te) -> None:
+        """Ring ids in row order (top beam first) and the beam table, from the rings' median elevations."""
+        med = np.array([np.median(te[ok][inv == k]) for k in range(len(ids))])  # once per sequence
+        self.ring_ids = ids[np.argsort(-med, kind="stable")]
+        self.beam_te = np.sort(med)[::-1]
+        if self.expected_rows is None:
+            self.expected_rows = len(ids)
+
+    def _ring_rows(self, ring, ok) -> np.ndarray:
+        """Row of every point from its ring id (-1 for no-return points)."""
+        order = np.argsort(self.ring_ids)
+        row = np.full(len(ok), -1, np.int64)
+        row[ok] = order[np.searchsorted(self.ring_ids[order], ring[ok])]
+        return row
 
     def _rings_at_their_elevations(self, row, ok, te, every: int = 16) -> bool:
         """Whether the rings of a sweep (rows from the ring field) still lie at their rows' beam
