@@ -42,6 +42,46 @@ def check_metric(path: Path, lo: np.ndarray, hi: np.ndarray) -> None:
         )
 
 
+def warn_coarse_storage(path: Path, dtype: np.dtype, lo: np.ndarray, hi: np.ndarray) -> None:
+    """Warn once per file when floating-point coordinates of this ``dtype`` (float32: 24 bits) are
+    stored with a step coarser than :data:`COARSE_SCALE` at the cloud's largest coordinate:
+    geo-referenced clouds (UTM northing ~5e6 m) written as float32 keep one value per 0.5 m."""
+    dtype = np.dtype(dtype)
+    if dtype.kind != "f" or dtype.itemsize >= 8:
+        return
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        return
+    largest = float(np.max(np.abs(np.concatenate([lo, hi]))))
+    step = float(np.spacing(dtype.type(largest)))
+    if step > COARSE_SCALE and str(path) not in _warned_coarse:
+        _warned_coarse.add(str(path))
+        log.warning(
+            "%s: %s coordinates as large as %.6g are stored with a step of %g: structure finer than that is lost "
+            "(store them as float64, or relative to an offset)",
+            path,
+            dtype.name,
+            largest,
+            step,
+        )
+
+
+def _ply_coordinate_dtype(path: Path) -> np.dtype:
+    """The widest type of the vertex x/y/z properties in a PLY header (float64 when unknown)."""
+    head = path.read_bytes()[:65536]
+    end = head.find(b"end_header")
+    types = {"float": np.float32, "float32": np.float32, "double": np.float64, "float64": np.float64}
+    found = []
+    element = None
+    for line in head[: max(end, 0)].decode("ascii", errors="replace").splitlines():
+        parts = line.split()
+        if len(parts) >= 2 and parts[0] == "element":
+            element = parts[1]
+        elif len(parts) == 3 and parts[0] == "property" and element == "vertex" and parts[2] in ("x", "y", "z"):
+            found.append(np.dtype(types.get(parts[1], np.float64)))
+    return max(found, key=lambda d: d.itemsize) if found else np.dtype(np.float64)
+
+
 def is_cloud_file(path: str | Path) -> bool:
     return Path(path).is_file() and Path(path).suffix.lower() in CLOUD_SUFFIXES
 
@@ -126,17 +166,22 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
             xyz = _check(path, np.load(path, mmap_mode="r"))
         except ValueError as e:
             raise DataError(f"{path}: not a readable .npy array ({e})") from e
+        stored = xyz.dtype
     elif suffix == ".pcd":  # our reader: any field type and layout, one-line errors
         from data_tools.pcd import read_sweep_fields
 
         fields = read_sweep_fields(path)[0]
+        stored = max((fields[a].dtype for a in "xyz"), key=lambda d: d.itemsize)
         xyz = np.column_stack([fields["x"], fields["y"], fields["z"]])
     else:
         xyz = _check(path, _open3d_points(path))
+        stored = _ply_coordinate_dtype(path) if suffix == ".ply" else xyz.dtype
     if len(xyz):
         finite = np.isfinite(xyz).all(axis=1)
         if finite.any():
-            check_metric(path, np.min(xyz[finite], axis=0), np.max(xyz[finite], axis=0))
+            lo, hi = np.min(xyz[finite], axis=0), np.max(xyz[finite], axis=0)
+            check_metric(path, lo, hi)
+            warn_coarse_storage(path, stored, lo, hi)
     for i in range(0, len(xyz), chunk):
         yield np.asarray(xyz[i : i + chunk], dtype=np.float64)
 
