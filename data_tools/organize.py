@@ -1065,7 +1065,9 @@ class Organizer:
             cloud, ok, rng, te, slot, rep, rows, cols, s, a0, times, intensity, name, source, frame_time,
             gt_point_labels, gt_point_instance, gt_pose, report, collisions,
         )  # fmt: skip
-        scan.meta["organize_seconds"] = time.perf_counter() - t_start
+        t_end = time.perf_counter()
+        scan.meta["organize_seconds"] = t_end - t_start
+        scan.meta["organize_span"] = (t_start, t_end)  # perf_counter interval (overlap credit, pipeline.NextFrame)
         return scan
 
     def scan_organized(

@@ -41,7 +41,8 @@ class ClassifiedFrame:
 
     ``labels`` is None when the run has no PRC stage. ``one_sided`` marks noise slots that meet
     one of the two support conditions of eq. (4) (thin poles, edges), as opposed to isolated
-    returns.
+    returns. ``spans`` are the ``time.perf_counter()`` intervals of the work in ``seconds``
+    (organising, classifying), for the credit of work done beside the registration.
     """
 
     scan: Scan
@@ -49,6 +50,7 @@ class ClassifiedFrame:
     seconds: float
     one_sided: np.ndarray | None = None
     ground_error: str | None = None
+    spans: tuple[tuple[float, float], ...] = ()
 
     def point_labels(self) -> np.ndarray:
         """Labels per input point, in input order."""
@@ -76,14 +78,18 @@ def classify_frames(scans: Iterable[Scan], config: PRCConfig) -> Iterator[Classi
     pending: list[tuple[Scan, int, np.ndarray, np.ndarray]] = []  # scan, first stream row, labels, one_sided
     next_row = 0
     spent = 0.0  # PRC time not yet attributed to a yielded frame
+    spent_spans: list[tuple[float, float]] = []  # and its intervals
     for scan in scans:
         if not scan.sensor.continuous_rows:
             wrap = True if config.wrap_columns is None else config.wrap_columns
             t0 = time.perf_counter()
             res = prc_block(scan.ranges, config, sensor=scan.sensor, wrap=wrap, ground_state=ground_state)
+            t1 = time.perf_counter()
             # organising an unorganised sweep (KITTI bins, PCD, bags) is PRC's cost too
-            seconds = time.perf_counter() - t0 + float(scan.meta.get("organize_seconds", 0.0))
-            yield ClassifiedFrame(scan, res.labels, seconds, res.one_sided, getattr(res, "ground_error", None))
+            seconds = t1 - t0 + float(scan.meta.get("organize_seconds", 0.0))
+            spans = (*organize_spans(scan), (t0, t1))
+            ground_error = getattr(res, "ground_error", None)
+            yield ClassifiedFrame(scan, res.labels, seconds, res.one_sided, ground_error, spans)
             continue
         if stream is None:
             stream = PRCStream(config, scan.sensor)
@@ -95,19 +101,29 @@ def classify_frames(scans: Iterable[Scan], config: PRCConfig) -> Iterator[Classi
         next_row += scan.shape[0]
         t0 = time.perf_counter()
         blocks = stream.push(scan.ranges)
-        spent += time.perf_counter() - t0
+        t1 = time.perf_counter()
+        spent += t1 - t0
+        spent_spans.append((t0, t1))
         for done, labels, one_sided in _complete(pending, blocks):
-            yield ClassifiedFrame(done, labels, spent, one_sided)
-            spent = 0.0
+            yield ClassifiedFrame(done, labels, spent, one_sided, spans=tuple(spent_spans))
+            spent, spent_spans = 0.0, []
     if stream is not None:
         t0 = time.perf_counter()
         blocks = stream.flush()
-        spent += time.perf_counter() - t0
+        t1 = time.perf_counter()
+        spent += t1 - t0
+        spent_spans.append((t0, t1))
         for done, labels, one_sided in _complete(pending, blocks):
-            yield ClassifiedFrame(done, labels, spent, one_sided)
-            spent = 0.0
+            yield ClassifiedFrame(done, labels, spent, one_sided, spans=tuple(spent_spans))
+            spent, spent_spans = 0.0, []
         if pending:
             raise RuntimeError("PRC stream flushed with frames still unlabelled")
+
+
+def organize_spans(scan: Scan) -> tuple[tuple[float, float], ...]:
+    """The organiser's ``time.perf_counter()`` interval for ``scan`` (none for organised input)."""
+    span = scan.meta.get("organize_span")
+    return () if span is None else ((float(span[0]), float(span[1])),)
 
 
 def _complete(pending: list, blocks: list) -> list[tuple[Scan, np.ndarray, np.ndarray]]:
@@ -150,33 +166,92 @@ def one_class(labels: np.ndarray, ranges: np.ndarray, min_returns: int = 1000) -
 _END = object()
 
 
+class ReadAhead(Iterator[Scan]):
+    """The scans of ``scans``, each read one call of :meth:`fill` before it is asked for.
+
+    :class:`NextFrame` calls :meth:`fill` once it has made a frame, so that the next sweep is read
+    (and, for an unorganised input, organised) after the current one's PRC instead of before it:
+    the PRC then falls inside the registration it is made beside, and reading, which is no
+    variant's cost, after it. A scan that could not be read raises its error from ``next()`` in
+    its turn (the iteration goes on, as the source's own); without :meth:`fill` every scan is read
+    when asked for.
+    """
+
+    def __init__(self, scans: Iterable[Scan]) -> None:
+        self._scans = iter(scans)
+        self._held: list[tuple[Scan | None, Exception | None]] = []
+        self._ended = False
+        #: the organiser's interval of the scan read by the last :meth:`fill` (none: organised input)
+        self.spans: tuple[tuple[float, float], ...] = ()
+
+    def _read(self) -> tuple[Scan | None, Exception | None]:
+        try:
+            return next(self._scans), None
+        except StopIteration:
+            self._ended = True
+            return None, None
+        except Exception as exc:  # raised again by __next__, in its turn
+            return None, exc
+
+    def fill(self) -> None:
+        """Read the next scan now (nothing when one is held or the input has ended)."""
+        self.spans = ()
+        if self._held or self._ended:
+            return
+        scan, error = self._read()
+        if scan is not None or error is not None:
+            self._held.append((scan, error))
+            if scan is not None:
+                self.spans = organize_spans(scan)
+
+    def __next__(self) -> Scan:
+        scan, error = self._held.pop() if self._held else self._read()
+        if error is not None:
+            raise error
+        if scan is None:
+            raise StopIteration
+        return scan
+
+
 class NextFrame:
     """The next frame of a run: made on demand (:meth:`take`), or on a background thread beside
     the caller's work on the current frame (:meth:`start`, then :meth:`wait`).
 
     The odometry stage starts it once the variants that do not need PRC have registered the
-    current frame, so that reading, organising and classifying the next sweep share the cores
-    with the current sweep's filter and registration (KISS-ICP holds the GIL while it registers;
-    the organiser's and PRC's numba kernels release it). An error raised while making the frame
-    is raised again by :meth:`take`, in the caller's thread.
+    current frame, so that classifying the next sweep (and reading and organising the one after,
+    with a :class:`ReadAhead`) shares the cores with the current sweep's filter and registration
+    (KISS-ICP holds the GIL while it registers; the organiser's and PRC's numba kernels release
+    it). ``charged`` lists the intervals of the organising and PRC done while making it, wherever
+    they belong. An error raised while making the frame is raised again by :meth:`take`, in the
+    caller's thread.
     """
 
-    def __init__(self, frames: Iterator[ClassifiedFrame]) -> None:
+    def __init__(self, frames: Iterator[ClassifiedFrame], ahead: ReadAhead | None = None) -> None:
         self._frames = frames
+        self._ahead = ahead
         self._thread: threading.Thread | None = None
         self._item: Any = None
         self._error: BaseException | None = None
         self.seconds = 0.0
         self.done_at = 0.0  # time.perf_counter() when the frame was made
+        self.charged: tuple[tuple[float, float], ...] = ()
 
     def _advance(self) -> None:
         t0 = time.perf_counter()
+        self.charged = ()
         try:
             self._item = next(self._frames, _END)
+            self.done_at = time.perf_counter()
+            self.seconds = self.done_at - t0
+            made = self._item.spans if isinstance(self._item, ClassifiedFrame) else ()
+            if self._ahead is not None:
+                self._ahead.fill()
+                made = (*made, *self._ahead.spans)
+            self.charged = tuple(s for s in made if s[1] > t0)
         except BaseException as exc:  # raised again by take(), in the caller's thread
             self._error = exc
-        self.done_at = time.perf_counter()
-        self.seconds = self.done_at - t0
+            self.done_at = time.perf_counter()
+            self.seconds = self.done_at - t0
 
     def start(self) -> None:
         """Begin making the next frame on a background thread (nothing when already begun)."""
@@ -405,7 +480,8 @@ class Pipeline:
         """
         result = PipelineResult()
         t_start = time.perf_counter()
-        frames = NextFrame(self._classified(self._readable(scans, result)))
+        ahead = ReadAhead(scans)
+        frames = NextFrame(self._classified(self._readable(ahead, result)), ahead)
         index = -1
         try:
             while (frame := frames.take()) is not None:

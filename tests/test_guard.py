@@ -205,7 +205,8 @@ def test_overlap_changes_no_pose_and_charges_the_wall_time(short_drive):
     hidden = np.array(prc.hidden)
     busy = np.array(prc.ms["filter"]) + np.array(prc.ms["icp"]) + np.array(prc.odometry.health_ms)
     assert len(hidden) == 8 and (hidden >= 0).all() and (hidden <= busy + 1e-9).all() and hidden.sum() > 0
-    # at most the next frame's organising and PRC (reading is charged to no variant); none after the last
+    # at most the next frame's PRC and the organising of the one read ahead (none: the simulator's sweeps
+    # come organised); reading is charged to no variant; nothing after the last frame
     assert (hidden[:-1] <= np.array(prc.ms["prc"][1:]) + 1e-9).all() and hidden[-1] == 0.0
     np.testing.assert_allclose(prc.ms_per_frame(), prc.ms_per_frame(serial=True) - hidden)
     m = runs[True].metrics()["variants"]["prc"]

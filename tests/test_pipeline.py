@@ -5,11 +5,15 @@ logs every stage of every frame into one recording."""
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from data_tools import open_dataset
@@ -18,13 +22,16 @@ from data_tools.sim.simulator import SimConfig, Simulator
 from prc_slam import labels as L
 from prc_slam.cli import app
 from prc_slam.pipeline import (
+    ClassifiedFrame,
     FrameError,
     NextFrame,
     Pipeline,
     PipelineFrame,
     PipelineResult,
+    ReadAhead,
     classify_frames,
     one_class,
+    organize_spans,
 )
 from prc_slam.prc.config import PRCConfig
 
@@ -195,6 +202,94 @@ def test_next_frame_made_beside_the_caller_comes_back_in_order_with_its_errors()
     with pytest.raises(FrameError, match=r"000003\.bin: truncated"):  # raised again in this thread
         ahead.take()
     assert ahead.take() is None and ahead.take() is None  # the end, for good
+
+
+class _Source:
+    """Scans ``0..n-1`` (stand-ins) from ``next()``; the indices in ``bad`` raise FrameError in their
+    turn and the iteration goes on (as ``jobs.common.frames_of``). Records what was read when."""
+
+    def __init__(self, n: int, bad: set[int]) -> None:
+        self.n, self.bad, self.i, self.reads = n, bad, 0, []
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        if self.i >= self.n:
+            raise StopIteration
+        i, self.i = self.i, self.i + 1
+        self.reads.append(i)
+        if i in self.bad:
+            raise FrameError(f"seq/{i:06d}.bin: truncated")
+        return SimpleNamespace(i=i, meta={})
+
+
+def _drain(it, fills) -> list:
+    """Everything ``it`` gives (values, and errors by message), calling ``it.fill()`` before the
+    k-th ``next()`` when ``fills[k]``."""
+    out = []
+    for k in range(10_000):
+        if k < len(fills) and fills[k]:
+            it.fill()
+        try:
+            out.append(next(it))
+        except FrameError as exc:
+            out.append(str(exc))
+        except StopIteration:
+            return out
+    raise AssertionError("did not end")
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    n=st.integers(0, 8),
+    bad=st.sets(st.integers(0, 7), max_size=4),
+    fills=st.lists(st.booleans(), max_size=20),
+)
+def test_read_ahead_gives_the_source_in_order_whenever_it_reads(n, bad, fills):
+    """Whatever the calls of ``fill()``, the scans and the unreadable frames' errors come in the
+    source's order, each once, and nothing is read more than one scan ahead."""
+    plain = _drain(_Source(n, bad), [])
+    source = _Source(n, bad)
+    ahead = ReadAhead(source)
+    got = _drain(ahead, fills)
+    assert got == plain
+    assert source.reads == list(range(n))
+
+
+def test_read_ahead_reads_after_the_frame_is_made_and_charges_its_organising():
+    """NextFrame makes a frame, then reads (and organises) the one after: ``charged`` holds that
+    frame's PRC interval and the read-ahead scan's organising interval (not an earlier one's)."""
+    events: list[str] = []
+    organised: dict[int, tuple[float, float]] = {}
+
+    class Scan_:
+        def __init__(self, i: int) -> None:
+            t = time.perf_counter()
+            self.i, self.meta = i, {"organize_span": (t - 1e-3, t)}
+            organised[i] = self.meta["organize_span"]
+
+    def scans():
+        for i in range(3):
+            events.append(f"read {i}")
+            yield Scan_(i)
+
+    def classified(read):
+        for s in read:
+            events.append(f"prc {s.i}")
+            t = time.perf_counter()
+            yield ClassifiedFrame(s, None, 0.0, spans=(*organize_spans(s), (t - 2e-3, t)))
+
+    read = ReadAhead(scans())
+    made = NextFrame(classified(read), read)
+    assert made.take().scan.i == 0 and events == ["read 0", "prc 0", "read 1"]
+    # frame 0 was read and organised in this call too
+    assert len(made.charged) == 3 and made.charged[0] == organised[0] and made.charged[2] == organised[1]
+    made.start()
+    assert made.take().scan.i == 1 and events[-2:] == ["prc 1", "read 2"]
+    assert len(made.charged) == 2 and made.charged[1] == organised[2]  # frame 1's organising was charged before
+    assert made.take().scan.i == 2 and len(made.charged) == 1  # nothing left to read
+    assert made.take() is None and made.charged == ()
 
 
 def test_one_class_by_hand():

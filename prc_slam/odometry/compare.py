@@ -25,7 +25,7 @@ from prc_slam.odometry import classaware
 from prc_slam.odometry.agreement import AgreementMonitor
 from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry
 from prc_slam.odometry.kiss import KissOdometry
-from prc_slam.pipeline import ClassifiedFrame, NextFrame, classify_frames
+from prc_slam.pipeline import ClassifiedFrame, NextFrame, ReadAhead, classify_frames
 from prc_slam.prc.algorithm import warm_up
 from prc_slam.scan import Scan
 
@@ -410,22 +410,20 @@ class OdometryVariants:
 
     @staticmethod
     def _credit(runs: dict[str, VariantRun], busy: dict[str, tuple[float, float]], ahead: NextFrame) -> None:
-        """Credit the PRC variants the charged time of the next frame that ran beside their work.
+        """Credit the PRC variants the charged work of the second thread that ran beside theirs.
 
         ``busy``: each PRC variant's filter, registration and health in the window, as
         ``time.perf_counter()`` intervals (one after the other on this thread). Of the second
-        thread's work only organising and PRC (``ClassifiedFrame.seconds``) are charged (reading is
-        no variant's cost); they are its last ``seconds`` before the frame was made. The part of
-        that interval beside any PRC variant's work is credited to each (at most its own busy
-        time): each PRC variant is charged the next frame's PRC in full, including the time it
-        spent waiting beside another variant's registration (KISS-ICP holds the GIL).
+        thread's work only organising and PRC are charged (``NextFrame.charged``: the next frame's
+        PRC and, with a read-ahead, the organising of the frame after; reading is no variant's
+        cost). The part of those intervals beside any PRC variant's work is credited to each (at
+        most its own busy time): each PRC variant is charged every frame's organising and PRC in
+        full when it is consumed, including the time it spent waiting beside another variant's
+        registration (KISS-ICP holds the GIL).
         """
-        made = ahead.made
-        if made is None:
-            return
-        end = ahead.done_at
-        start = end - min(made.seconds, ahead.seconds)
-        beside = sum(max(0.0, min(t1, end) - max(t0, start)) for t0, t1 in busy.values()) * 1e3
+        beside = 1e3 * sum(
+            max(0.0, min(t1, s1) - max(t0, s0)) for t0, t1 in busy.values() for s0, s1 in ahead.charged
+        )  # fmt: skip
         for name, (t0, t1) in busy.items():
             runs[name].hidden[-1] = min(beside, (t1 - t0) * 1e3)
 
@@ -462,8 +460,9 @@ def run_compare(
     """Run every variant over ``scans`` in one pass (see :class:`OdometryVariants`); stops when
     every variant has failed."""
     stage = OdometryVariants(config, variants)
-    frames = classify_frames(scans, config.prc) if stage.needs_prc else (ClassifiedFrame(s, None, 0.0) for s in scans)
-    ahead = NextFrame(iter(frames))
+    read = ReadAhead(scans)
+    frames = classify_frames(read, config.prc) if stage.needs_prc else (ClassifiedFrame(s, None, 0.0) for s in read)
+    ahead = NextFrame(iter(frames), read)
     i = 0
     try:
         while (frame := ahead.take()) is not None:
