@@ -10,6 +10,7 @@ map back to every input point in input order.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,8 @@ from prc_slam import labels as L
 from prc_slam.scan import Scan
 
 SWEEP_PERIOD = 0.1
+
+log = logging.getLogger("prc_slam.readers")
 
 
 def read_velodyne_bin(path: str | Path, allow_nonfinite: bool = False) -> np.ndarray:
@@ -128,15 +131,38 @@ class KittiSequence(SequenceBase):
             start_azimuth=None if clockwise is None else 0.0,
         )  # fmt: skip
         self.times = read_times(self.root / "times.txt") if (self.root / "times.txt").is_file() else None
-        if self.times is not None and len(self.times) < len(self.files):
-            raise DataError(f"{self.root / 'times.txt'}: {len(self.times)} times for {len(self.files)} scans")
+        if self.times is not None:
+            self.times = self._per_file(self.times, self.root / "times.txt", "times")
         self.poses = None
         if (self.root / "poses.txt").is_file():
             cam = read_kitti_poses(self.root / "poses.txt")
             tr = read_calib_tr(self.root / "calib.txt")
-            self.poses = np.linalg.inv(tr) @ cam @ tr
-            if len(self.poses) < len(self.files):
-                raise DataError(f"{self.root / 'poses.txt'}: {len(self.poses)} poses for {len(self.files)} scans")
+            self.poses = self._per_file(np.linalg.inv(tr) @ cam @ tr, self.root / "poses.txt", "poses")
+
+    def _per_file(self, rows: np.ndarray, path: Path, what: str) -> np.ndarray:
+        """The rows of ``times.txt`` / ``poses.txt`` (one per line) of the sweeps present, in file order.
+
+        KITTI numbers its sweeps from 0 and gives one line per sweep. A folder holding only some of
+        them (``000010.bin``..``000015.bin``, or numbers with gaps) beside the full files takes line
+        ``k + 1`` for ``k.bin`` (before, the first lines were given to whatever sweeps there were: a
+        silently wrong ground truth). Files with other names take the lines in order."""
+        n = len(self.files)
+        if len(rows) < n:
+            raise DataError(f"{path}: {len(rows)} {what} for {n} scans")
+        stems = [f.stem for f in self.files]
+        numbers = np.array([int(s) for s in stems]) if all(s.isdigit() for s in stems) else None
+        if numbers is None or np.array_equal(numbers, np.arange(n)):
+            return rows[:n]
+        if len(rows) == n:  # one line per sweep present: in order
+            return rows
+        if numbers.max() >= len(rows):
+            raise DataError(
+                f"{path}: {len(rows)} {what} for scans numbered {stems[0]}..{stems[-1]} ({n} scans): "
+                f"give one line per scan present, or the sequence's full file"
+            )
+        first = f"{stems[0]}.bin: line {numbers[0] + 1}"
+        log.info("%s: %s of the %d scans taken by their numbers (%s)", path, what, n, first)
+        return rows[numbers]
 
     def point_times(self, pts: np.ndarray, t0: float) -> np.ndarray:
         """Per-point times of a sweep starting at ``t0`` under the KITTI convention (azimuth 0
