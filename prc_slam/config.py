@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from prc_slam.filtering import FilterConfig
 from prc_slam.mapclass.classify import MapClassConfig
@@ -38,7 +38,10 @@ class Config(BaseModel):
         try:
             data = yaml.safe_load(path.read_text()) or {}
         except (OSError, yaml.YAMLError) as exc:
-            raise ValueError(f"{path}: cannot read config: {exc}") from exc
+            mark = getattr(exc, "problem_mark", None)
+            where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+            what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+            raise ValueError(f"{path}: cannot read config{where}: {what}") from exc
         if not isinstance(data, dict):
             raise ValueError(f"{path}: config must be a mapping, got {type(data).__name__}")
         if base is not None:
@@ -49,7 +52,15 @@ class Config(BaseModel):
                 else:
                     merged[section] = values
             data = merged
-        return cls.model_validate(data)
+        try:
+            return cls.model_validate(data)
+        except ValidationError as exc:  # name the file and the keys as written in it (prc.k, not --prc.k)
+            problems = "; ".join(
+                f"{'.'.join(str(p) for p in err.get('loc', ())) or 'config'}: {err.get('msg', 'invalid')}"
+                + (f" (got {err['input']!r})" if "input" in err and err.get("type") != "missing" else "")
+                for err in exc.errors()
+            )
+            raise ValueError(f"{path}: {problems}") from exc
 
     def to_yaml(self, path: str | Path) -> None:
         """Write the configuration actually used."""
