@@ -55,12 +55,23 @@ def read_label_file(path: str | Path, n_points: int | None = None) -> np.ndarray
     """Read a SemanticKITTI ``.label`` file (``uint32[N]``), checking the count if given."""
     path = Path(path)
     size = path.stat().st_size
+    width = None
+    if n_points and size != 4 * n_points:
+        width = {2 * n_points: "uint16", n_points: "uint8", 8 * n_points: "uint64"}.get(size)
+    hint = f" (one {width} per point? SemanticKITTI labels are uint32)" if width else ""
     if size % 4:
-        raise DataError(f"{path}: truncated: {size} bytes is not a whole number of uint32 labels")
+        raise DataError(f"{path}: truncated: {size} bytes is not a whole number of uint32 labels{hint}")
     lab = np.fromfile(path, dtype=np.uint32)
     if n_points is not None and lab.size != n_points:
-        raise DataError(f"{path}: {lab.size} labels for {n_points} points")
+        raise DataError(f"{path}: {lab.size} labels for {n_points} points{hint}")
     return lab
+
+
+#: SemanticKITTI's semantic ids (lower 16 bits of a label); any other id is read as unclassified
+_KNOWN_SEMANTIC = np.zeros(1 << 16, dtype=bool)
+_KNOWN_SEMANTIC[list(L.SEMANTIC_KITTI_TO_CODE)] = True
+#: a label file with more than this share of other ids is not SemanticKITTI's (warned)
+UNKNOWN_SEMANTIC_SHARE = 0.05
 
 
 def read_calib_tr(path: str | Path) -> np.ndarray:
@@ -174,6 +185,29 @@ class KittiSequence(SequenceBase):
             frac = (1.0 - frac) % 1.0
         return t0 + frac * self.sweep_period
 
+    def _reference(self, path: Path, n_points: int) -> np.ndarray | None:
+        """The sweep's SemanticKITTI labels, or None (warned) when the file does not fit the sweep:
+        the frame is then classified and registered, only not scored (a wrong label file used to
+        skip the whole frame). A file mostly of ids SemanticKITTI does not define is warned too
+        (they are scored as unclassified)."""
+        try:
+            raw = read_label_file(path, n_points)
+        except DataError as exc:
+            log.warning("%s: this frame is not scored", exc)
+            return None
+        unknown = ~_KNOWN_SEMANTIC[raw & 0xFFFF]
+        share = float(unknown.mean()) if len(raw) else 0.0
+        if share > UNKNOWN_SEMANTIC_SHARE:
+            example = int(raw[np.argmax(unknown)] & 0xFFFF)
+            log.warning(
+                "%s: %.0f%% of the labels have a semantic id SemanticKITTI does not define (e.g. %d): "
+                "not SemanticKITTI labels? They are scored as unclassified",
+                path,
+                100 * share,
+                example,
+            )
+        return raw
+
     def __getitem__(self, i: int) -> Scan:
         path = self.files[i]
         pts = read_velodyne_bin(path, allow_nonfinite=True)
@@ -184,9 +218,10 @@ class KittiSequence(SequenceBase):
         gt_point = gt_inst = None
         label_path = self.root / "labels" / (path.stem + ".label")
         if label_path.is_file():
-            raw = read_label_file(label_path, len(pts))
-            gt_point = L.from_semantic_kitti(raw)
-            gt_inst = L.instances_from_semantic_kitti(raw)
+            raw = self._reference(label_path, len(pts))
+            if raw is not None:
+                gt_point = L.from_semantic_kitti(raw)
+                gt_inst = L.instances_from_semantic_kitti(raw)
         return self.organizer.scan(
             pts[:, :3],
             intensity=pts[:, 3],

@@ -144,12 +144,15 @@ def test_nan_in_bin(tmp_path, caplog):
     assert codes[5] == L.NO_RETURN and (np.delete(codes, 5) == L.VEGETATION).all()
 
 
-def test_label_count_mismatch(tmp_path):
+def test_label_count_mismatch(tmp_path, caplog):
     root = make_kitti(tmp_path / "seq", frames=1)
     lab = root / "labels" / "000000.label"
     lab.write_bytes(lab.read_bytes()[:-8])
     with pytest.raises(DataError, match=r"000000.label: 2010 labels for 2012 points"):
-        KittiSequence(root)[0]
+        read_label_file(lab, 2012)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):  # the frame is read, not scored
+        scan = KittiSequence(root)[0]
+    assert scan.gt_labels is None and "000000.label: 2010 labels for 2012 points" in caplog.text
     lab.write_bytes(lab.read_bytes()[:-1])
     with pytest.raises(DataError, match="truncated"):
         read_label_file(lab)
