@@ -198,7 +198,7 @@ def cloud_classes(path: str | Path) -> tuple[np.ndarray, np.ndarray | None] | No
     laz_backend(path)
     try:
         las = laspy.read(path)
-    except (laspy.LaspyException, ValueError, OSError) as exc:
+    except (laspy.LaspyException, ValueError, OSError, RuntimeError) as exc:  # lazrs errors are RuntimeErrors
         raise DataError(f"{path}: not a readable LAS file ({exc})") from exc
     codes = np.asarray(las.classification, np.uint8)
     if not np.isin(codes, (0, 1), invert=True).any():

@@ -258,3 +258,25 @@ def test_label_files_that_are_not_semantic_kitti_are_warned(tmp_path, caplog):
         assert not caplog.records  # road everywhere: SemanticKITTI's
         seq[1]
     assert "000001.label" in caplog.text and "not SemanticKITTI labels?" in caplog.text
+
+
+def test_a_truncated_laz_map_is_a_one_line_error(tmp_path):
+    """Before: a traceback (lazrs.LazrsError from reading the file's own classes); in a batch,
+    three attempts and a failed row without the file's name."""
+    import laspy
+    from typer.testing import CliRunner
+
+    from prc_slam.cli import app
+
+    xyz = block_scene(3000)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales, header.offsets = np.array([0.001] * 3), np.zeros(3)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = xyz.T
+    las.classification = np.full(len(xyz), 2, np.uint8)
+    las.write(tmp_path / "whole.laz")
+    cut = tmp_path / "cut.laz"
+    cut.write_bytes((tmp_path / "whole.laz").read_bytes()[:3000])
+    res = CliRunner().invoke(app, ["mapclass", str(cut), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2 and (res.exception is None or isinstance(res.exception, SystemExit)), res.output
+    assert "cut.laz: not a readable LAS file" in " ".join(res.output.split())
