@@ -235,27 +235,30 @@ class NextFrame:
         self.seconds = 0.0
         self.done_at = 0.0  # time.perf_counter() when the frame was made
         self.charged: tuple[tuple[float, float], ...] = ()
+        self._later: BaseException | None = None  # an interrupt while reading ahead, after the frame made
 
     def _advance(self) -> None:
         t0 = time.perf_counter()
         self.charged = ()
         try:
             self._item = next(self._frames, _END)
-            self.done_at = time.perf_counter()
-            self.seconds = self.done_at - t0
-            made = self._item.spans if isinstance(self._item, ClassifiedFrame) else ()
-            if self._ahead is not None:
-                self._ahead.fill()
-                made = (*made, *self._ahead.spans)
-            self.charged = tuple(s for s in made if s[1] > t0)
         except BaseException as exc:  # raised again by take(), in the caller's thread
             self._error = exc
-            self.done_at = time.perf_counter()
-            self.seconds = self.done_at - t0
+        self.done_at = time.perf_counter()
+        self.seconds = self.done_at - t0
+        made = self._item.spans if isinstance(self._item, ClassifiedFrame) else ()
+        if self._ahead is not None and self._error is None:
+            try:
+                self._ahead.fill()  # (a frame that cannot be read raises in its turn, not here)
+            except BaseException as exc:  # e.g. Ctrl-C: the frame made is still given, then this
+                self._later = exc
+            made = (*made, *self._ahead.spans)
+        self.charged = tuple(s for s in made if s[1] > t0)
 
     def start(self) -> None:
-        """Begin making the next frame on a background thread (nothing when already begun)."""
-        if self._thread is None:
+        """Begin making the next frame on a background thread (nothing when already begun, or when
+        an interrupt is pending)."""
+        if self._thread is None and self._later is None:
             self._thread = threading.Thread(target=self._advance, name="prc-slam-next-frame", daemon=True)
             self._thread.start()
 
@@ -273,6 +276,9 @@ class NextFrame:
 
     def take(self) -> ClassifiedFrame | None:
         """The next frame (None after the last), made now unless :meth:`start` began it."""
+        if self._later is not None and self._thread is None:
+            later, self._later = self._later, None
+            raise later
         if self._thread is None:
             self._advance()
         else:

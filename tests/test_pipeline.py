@@ -292,6 +292,23 @@ def test_read_ahead_reads_after_the_frame_is_made_and_charges_its_organising():
     assert made.take() is None and made.charged == ()
 
 
+def test_an_interrupt_while_reading_ahead_comes_after_the_frame_made():
+    """Ctrl-C while the next sweep is read (after this one's PRC): this frame is still given (its
+    sinks run), the interrupt comes at the next take, and no thread is started meanwhile."""
+
+    def scans():
+        yield SimpleNamespace(i=0, meta={})
+        raise KeyboardInterrupt
+
+    read = ReadAhead(scans())
+    made = NextFrame((ClassifiedFrame(s, None, 0.0) for s in read), read)
+    assert made.take().scan.i == 0
+    made.start()  # pending interrupt: nothing begun
+    assert made.wait() == 0.0
+    with pytest.raises(KeyboardInterrupt):
+        made.take()
+
+
 def test_one_class_by_hand():
     ranges = np.ones((10, 200), np.float32)
     ranges[0, :100] = 0.0  # no returns: not counted
