@@ -280,3 +280,29 @@ def test_a_truncated_laz_map_is_a_one_line_error(tmp_path):
     res = CliRunner().invoke(app, ["mapclass", str(cut), "--out", str(tmp_path / "out")])
     assert res.exit_code == 2 and (res.exception is None or isinstance(res.exception, SystemExit)), res.output
     assert "cut.laz: not a readable LAS file" in " ".join(res.output.split())
+
+
+# ------------------------------------------------------------------ runs too short for the health checks
+
+
+def test_a_run_too_short_for_the_health_checks_says_so(tmp_path):
+    """Before: ``compare --stride 5`` on KITTI 00 (four keyframes) reported every variant 'ok',
+    prc+classaware too, 3.8 m short of the first 4.3 m step: no check runs before frame
+    ``warm_up``. Now report.md, metrics.json and the command line say that nothing was checked."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from prc_slam.cli import app
+    from prc_slam.jobs.odometry import unchecked_health_note
+    from prc_slam.odometry.guard import GuardConfig
+
+    warm_up = GuardConfig().warm_up
+    assert unchecked_health_note(warm_up + 1, warm_up) is None and unchecked_health_note(None, warm_up) is None
+    assert "only 1 frame:" in unchecked_health_note(1, warm_up)
+    root = _kitti_folder(tmp_path / "seq", [0, 1, 2], 3)
+    res = CliRunner().invoke(app, ["compare", str(root), "--variants", "raw", "--out", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    assert "only 3 frames: the health checks" in " ".join(res.output.split())
+    assert "only 3 frames" in json.loads((tmp_path / "out" / "metrics.json").read_text())["health_note"]
+    assert "**Health not checked**: only 3 frames" in (tmp_path / "out" / "report.md").read_text()
