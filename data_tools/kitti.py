@@ -18,7 +18,7 @@ import numpy as np
 from data_tools.errors import DataError
 from data_tools.organize import Organizer
 from data_tools.sequence import SequenceBase
-from data_tools.trajectory_io import read_kitti_poses, read_times
+from data_tools.trajectory_io import read_kitti_poses, read_times, warn_time_gaps
 from data_tools.units import warn_unless_metres
 from prc_slam import labels as L
 from prc_slam.scan import Scan
@@ -144,6 +144,7 @@ class KittiSequence(SequenceBase):
         self.times = read_times(self.root / "times.txt") if (self.root / "times.txt").is_file() else None
         if self.times is not None:
             self.times = self._per_file(self.times, self.root / "times.txt", "times")
+            warn_time_gaps(self.times, self.root / "times.txt")
         self.poses = None
         if (self.root / "poses.txt").is_file():
             cam = read_kitti_poses(self.root / "poses.txt")

@@ -575,10 +575,12 @@ class SweepFolder(SequenceBase):
         self.times = None
         if times_file is not None and times_file.is_file():
             from data_tools.kitti import read_times
+            from data_tools.trajectory_io import warn_time_gaps
 
             t = read_times(times_file)
             if len(t) != len(self.files):
                 raise DataError(f"{times_file}: {len(t)} times for {len(self.files)} sweeps")
+            warn_time_gaps(t, times_file)
             self.times = t
         self.sweep_period = float(sweep_period)
         self._period: float | None = None  # sweep spacing for per-point times relative to each sweep

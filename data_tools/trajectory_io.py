@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
 
 from data_tools.errors import DataError
 from data_tools.textfiles import read_numeric_table
+
+log = logging.getLogger("prc_slam.readers")
 
 
 def read_kitti_poses(path: str | Path) -> np.ndarray:
@@ -27,6 +30,39 @@ def read_times(path: str | Path) -> np.ndarray:
         # data rows, not file lines, when the file has blank or comment lines; the same here
         raise DataError(f"{path}: line {int(np.argmax(np.diff(t) <= 0)) + 2}: times are not strictly increasing")
     return t
+
+
+#: a step between frame times this many times the median step is a gap (frames dropped)
+GAP_FACTOR = 3.0
+
+
+def warn_time_gaps(times: np.ndarray, source: str | Path) -> int:
+    """Warn once when frame times jump by more than :data:`GAP_FACTOR` times their median step
+    (frames missing: odometry's constant-velocity prediction is then off by the distance driven
+    in the gap); returns the number of such gaps."""
+    t = np.asarray(times, dtype=np.float64)
+    if len(t) < 4:
+        return 0
+    step = np.diff(t)
+    median = float(np.median(step))
+    if not median > 0:
+        return 0
+    gaps = np.flatnonzero(step > GAP_FACTOR * median)
+    if len(gaps):
+        k = int(gaps[np.argmax(step[gaps])])
+        log.warning(
+            "%s: %d gap%s in the frame times, the largest %.3g s between frames %d and %d (%.1f x the median "
+            "step of %.3g s): frames missing? Odometry predicts the motion from the previous step",
+            source,
+            len(gaps),
+            "s" if len(gaps) > 1 else "",
+            step[k],
+            k,
+            k + 1,
+            step[k] / median,
+            median,
+        )
+    return len(gaps)
 
 
 def write_kitti_poses(path: str | Path, poses: np.ndarray) -> None:
@@ -111,4 +147,11 @@ def read_tum_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return data[:, 0] if len(data) else np.zeros(0), poses
 
 
-__all__ = ["read_kitti_poses", "read_times", "read_tum_poses", "write_kitti_poses", "write_tum_poses"]
+__all__ = [
+    "read_kitti_poses",
+    "read_times",
+    "read_tum_poses",
+    "warn_time_gaps",
+    "write_kitti_poses",
+    "write_tum_poses",
+]

@@ -306,3 +306,36 @@ def test_a_run_too_short_for_the_health_checks_says_so(tmp_path):
     assert "only 3 frames: the health checks" in " ".join(res.output.split())
     assert "only 3 frames" in json.loads((tmp_path / "out" / "metrics.json").read_text())["health_note"]
     assert "**Health not checked**: only 3 frames" in (tmp_path / "out" / "report.md").read_text()
+
+
+# ------------------------------------------------------------------ gaps in the frame times
+
+
+def test_a_gap_in_the_frame_times_is_warned(tmp_path, caplog):
+    """Before: sweeps 0-3 and 10-15 of KITTI 00 with their times.txt (0.7 s missing) ran without a
+    word; the prc variant fell 4 m behind at the gap (raw coped)."""
+    from data_tools.kitti import KittiSequence
+    from data_tools.pcd import SweepFolder
+    from data_tools.trajectory_io import warn_time_gaps
+
+    with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
+        assert warn_time_gaps(np.arange(10) * 0.1, "even") == 0
+        assert warn_time_gaps(np.array([0.0, 0.1, 0.2, 0.3, 5.3, 5.4, 5.5]), "gap") == 1
+        assert warn_time_gaps(np.array([0.0, 0.1, 0.9]), "too short to tell") == 0
+    assert [r.getMessage().split(":")[0] for r in caplog.records] == ["gap"]
+    assert "5 s between frames 3 and 4 (50.0 x the median step of 0.1 s)" in caplog.records[0].getMessage()
+    caplog.clear()
+    root = _kitti_folder(tmp_path / "seq", [0, 1, 2, 3, 10, 11, 12], 16)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
+        seq = KittiSequence(root)
+    assert "times.txt: 1 gap in the frame times, the largest 0.7 s between frames 3 and 4" in caplog.text
+    caplog.clear()
+    folder = tmp_path / "pcd"
+    folder.mkdir()
+    for i in range(5):
+        g = seq[i].points()
+        write_pcd(folder / f"{i:06d}.pcd", {"x": g[:, 0], "y": g[:, 1], "z": g[:, 2]})
+    np.savetxt(folder / "times.txt", [0.0, 0.1, 0.2, 0.3, 2.0])
+    with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
+        SweepFolder(folder)
+    assert "times.txt: 1 gap in the frame times, the largest 1.7 s" in caplog.text
