@@ -339,3 +339,31 @@ def test_a_gap_in_the_frame_times_is_warned(tmp_path, caplog):
     with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
         SweepFolder(folder)
     assert "times.txt: 1 gap in the frame times, the largest 1.7 s" in caplog.text
+
+
+# ------------------------------------------------------------------ maps of partly labelled sequences
+
+
+def test_mapclass_on_a_sequence_labelled_in_part_scores_the_labelled_frames(tmp_path):
+    """Before: ``mapclass kitti00 --max-frames 8 --every 2`` (SemanticKITTI labels for frames 0-2
+    only) failed with '496488 labels for 249146 reference codes'."""
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import map_from_dataset, mapclass_job
+
+    root = _kitti_folder(tmp_path / "seq", [0, 1, 2, 3], 4)
+    (root / "labels").mkdir()
+    n0 = (root / "velodyne" / "000000.bin").stat().st_size // 16
+    np.full(n0, 40, np.uint32).tofile(root / "labels" / "000000.label")  # road, frame 0 only
+    metrics = mapclass_job(root, Config(), tmp_path / "out", every=2)
+    n2 = (root / "velodyne" / "000002.bin").stat().st_size // 16
+    assert metrics["points"] == n0 + n2 and metrics["scored_points"] == n0
+    assert metrics["per_class"]["ground"]["support"] == n0
+
+    from data_tools.kitti import KittiSequence
+
+    seq = KittiSequence(root)
+    cloud = map_from_dataset(seq, 3, 1, None, prc={0: np.full(n0, 2, np.uint8)})  # frame 1 without PRC labels
+    sizes = [seq[i].n_points for i in range(3)]
+    assert len(cloud.attributes["prc"]) == len(cloud) == sum(sizes)
+    assert cloud.attributes["prc_known"].sum() == n0 and cloud.attributes["reference_known"].sum() == n0
+    assert "instance_known" not in cloud.attributes

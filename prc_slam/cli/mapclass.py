@@ -59,6 +59,12 @@ def print_mapclass(metrics: dict[str, Any], title: str) -> None:
     console.print("points per class: " + ", ".join(f"{k} {v:,}" for k, v in metrics["counts"].items()))
     if "per_class" in metrics:
         print_table(class_table(metrics, title))
+        if "scored_points" in metrics:  # a map of frames of which only some carry reference labels
+            console.print(
+                f"scored on the {metrics['scored_points']:,} of {metrics['points']:,} points from frames with "
+                "reference labels",
+                highlight=False,
+            )
     for name, o in metrics.get("objects", {}).items():
         console.print(f"{name} objects found: {o['found']} of {o['present']}", highlight=False)
     if "prc_vs_map" in metrics:

@@ -41,19 +41,41 @@ def map_from_dataset(
     times = np.arange(n) * 0.1 if times is None else np.asarray(times, dtype=float)
 
     def frames():
+        # every frame carries every attribute, with a mask of the frames that have it (frames
+        # without labels, e.g. SemanticKITTI 00 beyond frame 2, took no part: the attribute was
+        # then shorter than the map, '496488 labels for 249146 reference codes')
         for i in range(0, n, every):
             scan = dataset[i]
-            extra = {}
+            size = scan.n_points
             ref = scan.reference_labels()
-            if ref is not None:
-                extra["reference"] = ref
-                if scan.gt_instance is not None:
-                    extra["instance"] = scan.per_point(scan.gt_instance)
-            if prc is not None and i in prc:
-                extra["prc"] = prc[i]
+            inst = scan.per_point(scan.gt_instance) if ref is not None and scan.gt_instance is not None else None
+            extra = {
+                "reference": np.zeros(size, np.uint8) if ref is None else ref,
+                "reference_known": np.full(size, ref is not None),
+                "instance": np.zeros(size, np.uint32) if inst is None else np.asarray(inst, np.uint32),
+                "instance_known": np.full(size, inst is not None),
+            }
+            if prc is not None:
+                own = prc.get(i)
+                extra["prc"] = np.zeros(size, np.uint8) if own is None else own
+                extra["prc_known"] = np.full(size, own is not None)
             yield i, scan, extra
 
-    return accumulate(frames(), np.asarray(poses)[:n], times[:n])
+    cloud = accumulate(frames(), np.asarray(poses)[:n], times[:n])
+    for name in ("reference", "instance", "prc"):
+        known = cloud.attributes.pop(f"{name}_known", None)
+        if known is None or not known.any():
+            cloud.attributes.pop(name, None)
+        elif name != "instance" and not known.all():  # a missing instance is 0 (none)
+            cloud.attributes[f"{name}_known"] = known
+    return cloud
+
+
+def _known(values: np.ndarray | None, known: np.ndarray | None) -> np.ndarray | None:
+    """``values`` where ``known`` (all of them when ``known`` is None)."""
+    if values is None or known is None:
+        return values
+    return np.asarray(values)[known]
 
 
 def classify_map(
@@ -70,10 +92,16 @@ def classify_map(
     reporter: Reporter | None = None,
     laz: bool = False,
     tiler: Callable[..., Any] | None = None,
+    reference_known: np.ndarray | None = None,
+    prc_known: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Classify, write the per-class LAS (``laz``: LAZ) files, score; returns the metrics. Tiled
     runs keep the labels in a memory-mapped scratch file (one byte per point), so the map never
-    has to fit. The density messages (Sec. 3.1 threshold) are logged as warnings."""
+    has to fit. The density messages (Sec. 3.1 threshold) are logged as warnings.
+
+    ``reference_known`` / ``prc_known``: the points that have a reference / PRC label (a map
+    accumulated from frames of which only some are labelled); the scores count only those
+    (``scored_points``, ``prc_points``)."""
     from data_tools.writers import ClassSplitWriter
     from prc_slam.mapclass.classify import DensityWarning
     from prc_slam.mapclass_run import UNTILED_MAX_POINTS, prc_agreement, run_mapclass, score_map
@@ -108,9 +136,17 @@ def classify_map(
         del store
     metrics["files"] = {k: str(v) for k, v in writer.paths.items()}
     if reference is not None:
-        metrics.update(score_map(labels, reference, instance))
+        metrics.update(
+            score_map(
+                _known(labels, reference_known), _known(reference, reference_known), _known(instance, reference_known)
+            )
+        )
+        if reference_known is not None:
+            metrics["scored_points"] = int(np.count_nonzero(reference_known))
     if prc is not None:
-        metrics["prc_vs_map"] = prc_agreement(prc, labels)
+        metrics["prc_vs_map"] = prc_agreement(_known(prc, prc_known), _known(labels, prc_known))
+        if prc_known is not None:
+            metrics["prc_vs_map"]["points"] = int(np.count_nonzero(prc_known))
     return metrics
 
 
@@ -165,7 +201,7 @@ def mapclass_job(
         metrics = classify_map(
             lambda: array_chunks(cloud.points), len(cloud), cfg, out, tile, margin,
             cloud.attributes.get("reference"), cloud.attributes.get("instance"), viewer=viewer, reporter=reporter,
-            laz=laz, tiler=tiler,
+            laz=laz, tiler=tiler, reference_known=cloud.attributes.get("reference_known"),
         )  # fmt: skip
     viewer.close()
     metrics["input"] = str(input)
@@ -194,6 +230,7 @@ def compare_mapclass(
     mc = classify_map(
         lambda: array_chunks(cloud.points), len(cloud), cfg, out / "mapclass", None, 6.0,
         cloud.attributes.get("reference"), cloud.attributes.get("instance"), cloud.attributes.get("prc"),
+        reference_known=cloud.attributes.get("reference_known"), prc_known=cloud.attributes.get("prc_known"),
     )  # fmt: skip
     mc["poses"] = variant
     mc["map_points"] = len(cloud)
