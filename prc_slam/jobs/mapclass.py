@@ -37,6 +37,8 @@ def map_from_dataset(
         raise ValueError("--poses: the input has no ground-truth poses; give a KITTI pose file")
     if len(poses) < n:
         raise ValueError(f"{source}: {len(poses)} poses for {n} frames")
+    if source not in ("ground truth", "the estimate"):
+        warn_unless_z_up(np.asarray(poses)[:n], source)
     times = getattr(dataset, "times", None)
     times = np.arange(n) * 0.1 if times is None else np.asarray(times, dtype=float)
 
@@ -69,6 +71,29 @@ def map_from_dataset(
         elif name != "instance" and not known.all():  # a missing instance is 0 (none)
             cloud.attributes[f"{name}_known"] = known
     return cloud
+
+
+def warn_unless_z_up(poses: np.ndarray, source: str) -> bool:
+    """Warn when the sensor's path climbs more than it travels horizontally (over 2 m of path):
+    poses in a frame whose z is not up, as KITTI's own ``poses.txt`` (camera 0: y down, z forward),
+    stack the sweeps on top of each other and classify a road as buildings. Returns whether it
+    warned."""
+    steps = np.diff(np.asarray(poses, dtype=np.float64)[:, :3, 3], axis=0)
+    if len(steps) == 0:
+        return False
+    vertical = float(np.abs(steps[:, 2]).sum())
+    horizontal = float(np.hypot(steps[:, 0], steps[:, 1]).sum())
+    if vertical + horizontal < 2.0 or vertical <= horizontal:
+        return False
+    log.warning(
+        "%s: the poses climb %.1f m and move %.1f m horizontally: is z up in their frame? Map classification "
+        "needs z up; KITTI's poses.txt is in camera 0's frame (y down, z forward): give LiDAR poses (prc-slam "
+        "odometry --poses-out writes them) or leave --poses out to use the sequence's own ground truth",
+        source,
+        vertical,
+        horizontal,
+    )
+    return True
 
 
 def _known(values: np.ndarray | None, known: np.ndarray | None) -> np.ndarray | None:
