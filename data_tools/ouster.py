@@ -7,6 +7,7 @@ Each file holds one sweep in measurement order: ``range_mm`` (beams x measuremen
 
 from __future__ import annotations
 
+import logging
 import zipfile
 from pathlib import Path
 
@@ -15,6 +16,8 @@ import numpy as np
 from data_tools.errors import DataError
 from data_tools.sequence import SequenceBase
 from prc_slam.scan import Scan, SpinningSensor
+
+log = logging.getLogger("prc_slam.readers")
 
 REQUIRED = ("range_mm", "column_ts_ns", "beam_altitude_deg", "beam_azimuth_deg", "pixel_shift_by_row")
 
@@ -177,6 +180,37 @@ class OusterSequence(SequenceBase):
         self.destaggered = destaggered
         self.poses = None
         self.times = None
+        self._beams: tuple[int, np.ndarray] | None = None  # the first sweep read's beam altitudes
+        self._mixed_warned = False
 
     def __getitem__(self, i: int) -> Scan:
-        return read_ouster_npz(self.files[i], destaggered=self.destaggered, name=f"{i:06d}")
+        scan = read_ouster_npz(self.files[i], destaggered=self.destaggered, name=f"{i:06d}")
+        if len(self.files) > 1 and not self._mixed_warned:
+            self._check_same_sensor(i)
+        return scan
+
+    def _check_same_sensor(self, i: int) -> None:
+        """Warn once when a sweep's beam table is not the first sweep's: the folder mixes sensors
+        (before, the decoded folder of three Ouster models ran as one sequence, and odometry
+        stopped at frame 1 on a frame time going back, without a word about the cause)."""
+        with np.load(self.files[i]) as z:
+            alt = np.asarray(z["beam_altitude_deg"], dtype=np.float64)
+        if self._beams is None:
+            self._beams = (i, alt)
+            return
+        j, ref = self._beams
+        if alt.shape == ref.shape and np.allclose(alt, ref, atol=0.01):
+            return
+        self._mixed_warned = True
+
+        def table(a: np.ndarray) -> str:
+            return f"{len(a)} beams, {a.min():.2f}..{a.max():.2f} deg"
+
+        log.warning(
+            "%s: its beam table (%s) is not that of %s (%s): the folder mixes sensors, and odometry across them "
+            "is meaningless",
+            self.files[i],
+            table(alt),
+            self.files[j].name,
+            table(ref),
+        )
