@@ -26,10 +26,34 @@ def implausible_units(xyz: np.ndarray, sample: int = 20000) -> float | None:
     return med if med > IMPLAUSIBLE_MEDIAN_RANGE else None
 
 
+def off_origin(xyz: np.ndarray, sample: int = 20000) -> tuple[float, float] | None:
+    """``(median range, median distance to the points' median)`` when the points lie far from the
+    origin compared with their own spread (ten times or more): a sweep in a world or map frame
+    (e.g. UTM), not centred on its sensor as every sweep of a spinning or solid-state sensor is."""
+    pts = np.asarray(np.asarray(xyz)[:: max(1, len(xyz) // sample)], np.float64)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) < 100:
+        return None
+    r = float(np.median(np.linalg.norm(pts, axis=1)))
+    spread = float(np.median(np.linalg.norm(pts - np.median(pts, axis=0), axis=1)))
+    return (r, spread) if r > 10.0 * spread else None
+
+
 def warn_unless_metres(xyz: np.ndarray, source: str, what: str = "sweeps") -> None:
-    """Warn (naming ``source``) when :func:`implausible_units` finds the sweep not in metres."""
+    """Warn (naming ``source``) when :func:`implausible_units` finds the sweep not in metres, or
+    (:func:`off_origin`) not in its sensor's frame."""
     med = implausible_units(xyz)
-    if med is not None:
+    away = off_origin(xyz) if med is not None else None
+    if away is not None:
+        log.warning(
+            "%s: the returns lie %.0f from the origin but within %.0f of each other: the %s are in a world or "
+            "map frame, not their sensor's (the organiser needs each sweep centred on its sensor)",
+            source,
+            away[0],
+            away[1],
+            what,
+        )
+    elif med is not None:
         log.warning(
             "%s: the returns' median range is %.0f: the coordinates are not in metres (millimetres? "
             "centimetres?); every threshold is in metres: convert the %s first",

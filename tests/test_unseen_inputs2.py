@@ -428,3 +428,33 @@ def test_a_folder_of_sweeps_from_several_ouster_sensors_is_warned(ouster_files, 
         seq[1]
     warned = [r.getMessage() for r in caplog.records]
     assert len(warned) == 1 and "000001.npz: its beam table" in warned[0] and "mixes sensors" in warned[0]
+
+
+# ------------------------------------------------------------------ sweeps in a world frame
+
+
+def test_sweeps_in_a_world_frame_are_told_apart_from_millimetres(tmp_path, caplog):
+    """Before: a sweep written in UTM coordinates was warned as 'not in metres (millimetres?
+    centimetres?)', which sends the user to convert units that are right."""
+    import contextlib
+
+    from data_tools import DataError
+    from data_tools.pcd import SweepFolder
+    from prc_slam.scan import ScanError
+    from tests.test_unseen_inputs import spinning_grid
+
+    g = spinning_grid().reshape(-1, 3).astype(np.float64)
+    g = g[np.isfinite(g).all(axis=1)]
+    for name, xyz in (("utm", g + UTM), ("mm", g * 1000.0)):
+        folder = tmp_path / name
+        folder.mkdir()
+        write_pcd(folder / "000000.pcd", {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]})
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
+            with contextlib.suppress(DataError, ScanError):  # the organiser may refuse it: the warning is tested
+                SweepFolder(folder)[0]
+        text = caplog.text
+        if name == "utm":
+            assert "in a world or map frame, not their sensor's" in text and "millimetres" not in text
+        else:
+            assert "not in metres (millimetres?" in text and "world or map frame" not in text
