@@ -43,7 +43,7 @@ def warn_unless_metres(xyz: np.ndarray, source: str, what: str = "sweeps") -> No
     """Warn (naming ``source``) when :func:`implausible_units` finds the sweep not in metres, or
     (:func:`off_origin`) not in its sensor's frame."""
     med = implausible_units(xyz)
-    away = off_origin(xyz) if med is not None else None
+    away = off_origin(xyz)  # real sweeps: 1.0-1.8 (KITTI, the five multisensor sweeps, Ouster); 75 at 127 m off
     if away is not None:
         log.warning(
             "%s: the returns lie %.0f from the origin but within %.0f of each other: the %s are in a world or "

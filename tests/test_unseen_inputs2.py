@@ -445,7 +445,7 @@ def test_sweeps_in_a_world_frame_are_told_apart_from_millimetres(tmp_path, caplo
 
     g = spinning_grid().reshape(-1, 3).astype(np.float64)
     g = g[np.isfinite(g).all(axis=1)]
-    for name, xyz in (("utm", g + UTM), ("mm", g * 1000.0)):
+    for name, xyz in (("utm", g + UTM), ("local", g + np.array([400.0, -150.0, 2.0])), ("mm", g * 1000.0), ("m", g)):
         folder = tmp_path / name
         folder.mkdir()
         write_pcd(folder / "000000.pcd", {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]})
@@ -454,7 +454,7 @@ def test_sweeps_in_a_world_frame_are_told_apart_from_millimetres(tmp_path, caplo
             with contextlib.suppress(DataError, ScanError):  # the organiser may refuse it: the warning is tested
                 SweepFolder(folder)[0]
         text = caplog.text
-        if name == "utm":
+        if name in ("utm", "local"):
             assert "in a world or map frame, not their sensor's" in text and "millimetres" not in text
         else:
-            assert "not in metres (millimetres?" in text and "world or map frame" not in text
+            assert ("not in metres (millimetres?" in text) == (name == "mm") and "world or map frame" not in text
