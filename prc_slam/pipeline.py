@@ -232,8 +232,7 @@ class NextFrame:
         self._thread: threading.Thread | None = None
         self._item: Any = None
         self._error: BaseException | None = None
-        self.seconds = 0.0
-        self.done_at = 0.0  # time.perf_counter() when the frame was made
+        self.seconds = 0.0  # wall time of making the last frame (not of reading ahead)
         self.charged: tuple[tuple[float, float], ...] = ()
         self._later: BaseException | None = None  # an interrupt while reading ahead, after the frame made
 
@@ -244,8 +243,7 @@ class NextFrame:
             self._item = next(self._frames, _END)
         except BaseException as exc:  # raised again by take(), in the caller's thread
             self._error = exc
-        self.done_at = time.perf_counter()
-        self.seconds = self.done_at - t0
+        self.seconds = time.perf_counter() - t0
         made = self._item.spans if isinstance(self._item, ClassifiedFrame) else ()
         if self._ahead is not None and self._error is None:
             try:
@@ -268,11 +266,6 @@ class NextFrame:
             return 0.0
         self._thread.join()
         return self.seconds
-
-    @property
-    def made(self) -> ClassifiedFrame | None:
-        """After :meth:`wait`: the frame made (None at the end of the input or on an error)."""
-        return self._item if isinstance(self._item, ClassifiedFrame) else None
 
     def take(self) -> ClassifiedFrame | None:
         """The next frame (None after the last), made now unless :meth:`start` began it."""
