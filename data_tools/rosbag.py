@@ -563,6 +563,7 @@ class RosbagSequence:
         self._time_field: TimeField | bool | None = False  # False: not yet decided
         self._organizer = organizer
         self._row_lines: dict[tuple[int, int], bool] = {}  # organised grid shape -> rows are scan lines
+        self._units_checked = False  # the first cloud read is checked for metres and its frame
 
     @property
     def organizer(self) -> Any:
@@ -686,6 +687,11 @@ class RosbagSequence:
             if self._time_field is not None:
                 log.info("%s: per-point time from field %s", self.path, self._time_field.describe())
         tf = self._time_field if isinstance(self._time_field, TimeField) else None
+        if not self._units_checked:  # the first cloud read: in metres, in its sensor's frame?
+            self._units_checked = True
+            from data_tools.units import warn_unless_metres
+
+            warn_unless_metres(cloud_xyz(cloud), f"{self.path} ({self.topic}, frame {cloud.frame_id!r})", "clouds")
         scan = cloud_to_scan(
             cloud, self.organizer, name=f"{i:06d}", source=self._source(i), time_field=tf, row_lines=self._row_lines
         )
