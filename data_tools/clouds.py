@@ -186,6 +186,27 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
         yield np.asarray(xyz[i : i + chunk], dtype=np.float64)
 
 
+#: VLRs that tell a LAS file's coordinate reference system (copied to the classified clouds)
+CRS_VLRS = ("WktCoordinateSystemVlr", "GeoKeyDirectoryVlr", "GeoDoubleParamsVlr", "GeoAsciiParamsVlr")
+
+
+def cloud_crs(path: str | Path) -> list:
+    """A LAS/LAZ file's coordinate reference system records (WKT and GeoTIFF-key VLRs), to write
+    beside the classified points (a UTM tile's outputs lost their CRS: a GIS placed them nowhere);
+    empty for other formats and for files without them."""
+    path = Path(path)
+    if path.suffix.lower() not in (".las", ".laz"):
+        return []
+    import laspy
+
+    try:
+        with laspy.open(path, laz_backend=laz_backend(path)) as f:
+            vlrs = list(f.header.vlrs)
+    except (laspy.LaspyException, ValueError, OSError, RuntimeError) as exc:  # lazrs errors are RuntimeErrors
+        raise DataError(f"{path}: not a readable LAS file ({exc})") from exc
+    return [v for v in vlrs if type(v).__name__ in CRS_VLRS]
+
+
 def cloud_classes(path: str | Path) -> tuple[np.ndarray, np.ndarray | None] | None:
     """A LAS/LAZ file's own classes (``classification``, and the ``instance`` dimension when
     present), to score a map against; None for other formats and for files whose classes are

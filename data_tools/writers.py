@@ -93,14 +93,16 @@ def write_ply(path: str | Path, xyz: np.ndarray, labels: np.ndarray | None = Non
 class ClassSplitWriter:
     """Segregation into sub-clouds (paper 004): one combined LAS 1.4 file with every point and
     one LAS 1.4 file per class present (``<class name>.las``), written chunk by chunk. When the
-    combined name ends in ``.laz`` every file is LAZ-compressed (``<class name>.laz``).
+    combined name ends in ``.laz`` every file is LAZ-compressed (``<class name>.laz``). ``crs``:
+    the input's coordinate reference system records, written in every file.
 
     Use as a context manager; ``write(xyz, codes)`` may be called any number of times.
     """
 
-    def __init__(self, out_dir: str | Path, combined: str = "map_classified.las") -> None:
+    def __init__(self, out_dir: str | Path, combined: str = "map_classified.las", crs: list | None = None) -> None:
         self.out_dir = Path(out_dir)
         self.combined_name = combined
+        self.crs = list(crs or [])  # the input's CRS VLRs (data_tools.clouds.cloud_crs), written in every file
         self._writers: dict[str, laspy.LasWriter] = {}
         self._header: laspy.LasHeader | None = None
         self.counts: dict[str, int] = {}
@@ -145,6 +147,10 @@ class ClassSplitWriter:
             self._header = laspy.LasHeader(point_format=6, version="1.4")
             self._header.scales = np.array([0.001, 0.001, 0.001])
             self._header.offsets = np.floor(xyz.min(axis=0))
+            for vlr in self.crs:
+                self._header.vlrs.append(vlr)
+            if any(type(v).__name__ == "WktCoordinateSystemVlr" for v in self.crs):
+                self._header.global_encoding.wkt = True
         for name, sel in [("all", slice(None))] + [
             (L.CODE_TO_NAME.get(int(c), f"code_{c}"), codes == c) for c in np.unique(codes)
         ]:

@@ -489,3 +489,40 @@ def test_a_recording_of_registered_clouds_is_warned(tmp_path, caplog):
         assert len(warned) == (name == "map")
         if warned:
             assert "frame 'camera_init'" in warned[0] and "/cloud" in warned[0]
+
+
+UTM32N_WKT = (
+    'PROJCS["WGS 84 / UTM zone 32N",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],'
+    'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],'
+    'PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",9],PARAMETER["scale_factor",0.9996],'
+    'PARAMETER["false_easting",500000],PARAMETER["false_northing",0],UNIT["metre",1],AUTHORITY["EPSG","32632"]]'
+)
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_the_classified_clouds_keep_the_input_crs(tmp_path, suffix):
+    """Before: a UTM tile with its WKT CRS came out as LAS files without one (a GIS placed the
+    classified clouds nowhere)."""
+    import laspy
+    from laspy.vlrs.known import WktCoordinateSystemVlr
+
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    xyz = np.round(block_scene(6000), 3) + UTM
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales, header.offsets = np.array([0.001] * 3), np.floor(xyz.min(axis=0))
+    header.vlrs.append(WktCoordinateSystemVlr(UTM32N_WKT))
+    header.global_encoding.wkt = True
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = xyz.T
+    las.write(tmp_path / f"tile{suffix}")
+    plain = write_las(tmp_path / "plain.las", xyz)
+    metrics = mapclass_job(tmp_path / f"tile{suffix}", Config(), tmp_path / "out", laz=suffix == ".laz")
+    assert len(metrics["files"]) > 2
+    for path in metrics["files"].values():
+        out = laspy.read(path)
+        wkt = [v for v in out.header.vlrs if isinstance(v, WktCoordinateSystemVlr)]
+        assert len(wkt) == 1 and "UTM zone 32N" in wkt[0].string and out.header.global_encoding.wkt
+    metrics = mapclass_job(plain, Config(), tmp_path / "plain")
+    assert not laspy.read(metrics["files"]["all"]).header.vlrs

@@ -119,6 +119,7 @@ def classify_map(
     tiler: Callable[..., Any] | None = None,
     reference_known: np.ndarray | None = None,
     prc_known: np.ndarray | None = None,
+    crs: list | None = None,
 ) -> dict[str, Any]:
     """Classify, write the per-class LAS (``laz``: LAZ) files, score; returns the metrics. Tiled
     runs keep the labels in a memory-mapped scratch file (one byte per point), so the map never
@@ -126,7 +127,7 @@ def classify_map(
 
     ``reference_known`` / ``prc_known``: the points that have a reference / PRC label (a map
     accumulated from frames of which only some are labelled); the scores count only those
-    (``scored_points``, ``prc_points``)."""
+    (``scored_points``, ``prc_points``). ``crs``: the input's CRS records, copied to every file."""
     from data_tools.writers import ClassSplitWriter
     from prc_slam.mapclass.classify import DensityWarning
     from prc_slam.mapclass_run import UNTILED_MAX_POINTS, prc_agreement, run_mapclass, score_map
@@ -150,7 +151,7 @@ def classify_map(
             )  # fmt: skip
         for message in metrics.get("messages", []):
             log.warning(message)
-        with ClassSplitWriter(out, combined="map_classified.laz" if laz else "map_classified.las") as writer:
+        with ClassSplitWriter(out, combined="map_classified.laz" if laz else "map_classified.las", crs=crs) as writer:
             start = 0
             for part, chunk in enumerate(points_source()):
                 writer.write(chunk, labels[start : start + len(chunk)])
@@ -198,7 +199,7 @@ def mapclass_job(
 
     A LAS/LAZ file that carries classes of its own (beyond 0 and 1) is scored against them
     (``reference=None``: when it has them; True: required; False: never)."""
-    from data_tools.clouds import cloud_chunks, cloud_classes, cloud_size, is_cloud_file
+    from data_tools.clouds import cloud_chunks, cloud_classes, cloud_crs, cloud_size, is_cloud_file
     from data_tools.errors import DataError
     from prc_slam.jobs.common import open_input
     from prc_slam.mapclass.tiles import array_chunks
@@ -214,7 +215,7 @@ def mapclass_job(
             raise DataError(f"{input}: the cloud holds no points")
         metrics = classify_map(
             lambda: cloud_chunks(input), size, cfg, out, tile, margin, ref, inst, viewer=viewer,
-            reporter=reporter, laz=laz, tiler=tiler,
+            reporter=reporter, laz=laz, tiler=tiler, crs=cloud_crs(input),
         )  # fmt: skip
         if own is not None and note is not None:
             note(f"scored against the classes stored in {input}")
