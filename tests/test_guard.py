@@ -17,7 +17,7 @@ from prc_slam.config import Config, PRCConfig
 from prc_slam.jobs.odometry import trajectory_file
 from prc_slam.odometry import classaware
 from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry, GroupVoxelMap, icp
-from prc_slam.odometry.compare import run_compare
+from prc_slam.odometry.compare import _without, run_compare
 from prc_slam.odometry.guard import DivergenceMonitor, FrameHealth, GuardConfig, OdometryFailure, check_pose
 from prc_slam.odometry.kiss import KissOdometry, OdometryConfig
 from prc_slam.report import write_compare_outputs
@@ -191,8 +191,8 @@ def test_health_is_recorded_per_frame(short_drive):
 
 def test_overlap_changes_no_pose_and_charges_the_wall_time(short_drive):
     """The next frame made beside the PRC variants' registration: the same poses as one after the
-    other; a PRC variant is credited at most its own filter and registration time and the next
-    frame's charged PRC time, ``raw`` nothing."""
+    other; a PRC variant is credited at most its own filter and registration time (not its health
+    residuals) and the next frame's charged PRC time, ``raw`` nothing."""
     scans = [short_drive[i] for i in range(8)]
     runs = {}
     for overlap in (False, True):
@@ -203,7 +203,7 @@ def test_overlap_changes_no_pose_and_charges_the_wall_time(short_drive):
     assert not any(runs[False].runs["prc"].hidden) and not any(runs[True].runs["raw"].hidden)
     prc = runs[True].runs["prc"]
     hidden = np.array(prc.hidden)
-    busy = np.array(prc.ms["filter"]) + np.array(prc.ms["icp"]) + np.array(prc.odometry.health_ms)
+    busy = np.array(prc.ms["filter"]) + np.array(prc.ms["icp"])  # the health residuals hide nothing
     assert len(hidden) == 8 and (hidden >= 0).all() and (hidden <= busy + 1e-9).all() and hidden.sum() > 0
     # at most the next frame's PRC and the organising of the one read ahead (none: the simulator's sweeps
     # come organised); reading is charged to no variant; nothing after the last frame
@@ -213,6 +213,14 @@ def test_overlap_changes_no_pose_and_charges_the_wall_time(short_drive):
     assert m["ms_overlapped"] == pytest.approx(hidden.mean())
     assert m["ms_per_frame"] == pytest.approx(m["ms_per_frame_serial"] - hidden.mean())
     assert m["per_frame"]["ms_wall"] == pytest.approx(prc.ms_per_frame().tolist())
+
+
+def test_work_beside_the_health_residuals_is_not_credited():
+    """An interval less the health checks' intervals, by hand."""
+    assert _without((0.0, 10.0), []) == [(0.0, 10.0)]
+    assert _without((0.0, 10.0), [(6.0, 7.0), (2.0, 3.0)]) == [(0.0, 2.0), (3.0, 6.0), (7.0, 10.0)]
+    assert _without((0.0, 10.0), [(0.0, 1.0), (9.0, 10.0)]) == [(1.0, 9.0)]
+    assert _without((0.0, 10.0), [(-1.0, 11.0)]) == []
 
 
 def test_point_times_on_another_clock_are_named():

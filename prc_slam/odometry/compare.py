@@ -250,6 +250,18 @@ def _select(name: str, pts: np.ndarray, labels: np.ndarray | None, frame: Classi
     raise ValueError(f"unknown variant {name!r}")
 
 
+def _without(interval: tuple[float, float], holes: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """``interval`` less the (disjoint) ``holes``, as a list of intervals."""
+    out, start = [], interval[0]
+    for h0, h1 in sorted(holes):
+        if h0 > start:
+            out.append((start, min(h0, interval[1])))
+        start = max(start, h1)
+    if start < interval[1]:
+        out.append((start, interval[1]))
+    return [(a, b) for a, b in out if b > a]
+
+
 def warm_up_kernels(config: Config) -> None:
     """Compile (or load) the numba kernels of the filter, the deskewing and the guard before
     anything is timed."""
@@ -347,7 +359,7 @@ class OdometryVariants:
         turn = index % len(with_prc) if with_prc else 0  # the PRC variants take turns at going first
         order = [n for n in self.runs if n not in PRC_VARIANTS] + with_prc[turn:] + with_prc[:turn]
         window = False  # the next frame is being made beside the PRC variants
-        busy: dict[str, tuple[float, float]] = {}  # PRC variant -> its filter, registration and health
+        busy: dict[str, list[tuple[float, float]]] = {}  # PRC variant -> its filter and registration
         for name in order:
             run = self.runs[name]
             if run.failed is not None:
@@ -360,9 +372,9 @@ class OdometryVariants:
                     run.ms["prc"].append(frame.seconds * 1e3)
                 t0 = time.perf_counter()
                 keep, codes, res = _select(name, pts, labels, frame, config)
-                if name != "raw":
-                    run.ms["filter"].append((time.perf_counter() - t0) * 1e3)
                 t1 = time.perf_counter()
+                if name != "raw":
+                    run.ms["filter"].append((t1 - t0) * 1e3)
                 sel = keep if res is None else res.kept_in_order  # PRC chooses what is registered, and in which order
                 extra = {}
                 if res is not None and res.source is not None:
@@ -387,8 +399,8 @@ class OdometryVariants:
                 if run.hidden:  # the credit for this frame's PRC, no longer charged
                     run.hidden[-1] = 0.0
                 continue
-            if window:
-                busy[name] = (t0, t2)
+            if window:  # the health residuals are monitoring, charged to no variant: nothing hides behind them
+                busy[name] = [(t0, t1), *_without((t1, t2), run.odometry.health_spans)]
             run.hidden.append(0.0)
             poses[name] = pose
             if res is not None:
@@ -409,23 +421,23 @@ class OdometryVariants:
         return FrameRecord(frame, index, kept, poses, self.runs)
 
     @staticmethod
-    def _credit(runs: dict[str, VariantRun], busy: dict[str, tuple[float, float]], ahead: NextFrame) -> None:
+    def _credit(runs: dict[str, VariantRun], busy: dict[str, list[tuple[float, float]]], ahead: NextFrame) -> None:
         """Credit the PRC variants the charged work of the second thread that ran beside theirs.
 
-        ``busy``: each PRC variant's filter, registration and health in the window, as
-        ``time.perf_counter()`` intervals (one after the other on this thread). Of the second
-        thread's work only organising and PRC are charged (``NextFrame.charged``: the next frame's
-        PRC and, with a read-ahead, the organising of the frame after; reading is no variant's
-        cost). The part of those intervals beside any PRC variant's work is credited to each (at
-        most its own busy time): each PRC variant is charged every frame's organising and PRC in
-        full when it is consumed, including the time it spent waiting beside another variant's
-        registration (KISS-ICP holds the GIL).
+        ``busy``: each PRC variant's filter and registration in the window (not its health
+        residuals, which are charged to no variant), as ``time.perf_counter()`` intervals (one
+        variant after the other on this thread). Of the second thread's work only organising and
+        PRC are charged (``NextFrame.charged``: the next frame's PRC and, with a read-ahead, the
+        organising of the frame after; reading is no variant's cost). The part of those intervals
+        beside any PRC variant's work is credited to each (at most its own filter and registration
+        time): each PRC variant is charged every frame's organising and PRC in full when it is
+        consumed, including the time it spent waiting beside another variant's registration
+        (KISS-ICP holds the GIL).
         """
-        beside = 1e3 * sum(
-            max(0.0, min(t1, s1) - max(t0, s0)) for t0, t1 in busy.values() for s0, s1 in ahead.charged
-        )  # fmt: skip
-        for name, (t0, t1) in busy.items():
-            runs[name].hidden[-1] = min(beside, (t1 - t0) * 1e3)
+        spans = [s for intervals in busy.values() for s in intervals]
+        beside = 1e3 * sum(max(0.0, min(t1, s1) - max(t0, s0)) for t0, t1 in spans for s0, s1 in ahead.charged)
+        for name, intervals in busy.items():
+            runs[name].hidden[-1] = min(beside, 1e3 * sum(t1 - t0 for t0, t1 in intervals))
 
     def _cross_check(self, index: int, pts: np.ndarray, poses: dict[str, np.ndarray]) -> None:
         """Hold the variants that registered this frame against each other

@@ -253,11 +253,20 @@ class GuardedOdometry:
         self.clock = FrameClock()
         self.monitor = DivergenceMonitor(self.config.guard)
         self._pending_ms = 0.0  # guard time spent before the health of the frame is recorded
+        #: the ``time.perf_counter()`` intervals of the last frame's health work (not registration)
+        self.health_spans: list[tuple[float, float]] = []
+
+    def _health_since(self, t0: float) -> float:
+        """Record the health work from ``t0`` until now; its milliseconds."""
+        t1 = time.perf_counter()
+        self.health_spans.append((t0, t1))
+        return (t1 - t0) * 1e3
 
     def _prepare(
         self, points: np.ndarray, times: np.ndarray | None, frame_time: float | None
     ) -> tuple[np.ndarray, np.ndarray | None, int, float, float]:
         """Checked, finite points and times; the frame's reference time and the pose-jump interval."""
+        self.health_spans = []
         pts = np.asarray(points)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"points must be (N, 3), got {pts.shape}")
@@ -298,7 +307,7 @@ class GuardedOdometry:
             h.inliers, h.source_points = 0, 0  # no map yet: nothing to judge
         self.monitor.update(h)
         self.health.append(h)
-        self.health_ms.append((time.perf_counter() - t0) * 1e3 + self._pending_ms)
+        self.health_ms.append(self._health_since(t0) + self._pending_ms)
         self._pending_ms = 0.0
         return h
 
@@ -411,7 +420,7 @@ class KissOdometry(GuardedOdometry):
         kiss.local_map.update(frame_downsample, new_pose)
         t0 = time.perf_counter()
         self._shadow.update(frame_downsample, np.zeros(len(frame_downsample), np.int64), new_pose)
-        self.health_ms[-1] += (time.perf_counter() - t0) * 1e3
+        self.health_ms[-1] += self._health_since(t0)
         kiss.last_delta = np.linalg.inv(kiss.last_pose) @ new_pose
         kiss.last_pose = new_pose
         pose = new_pose.copy()
@@ -428,7 +437,7 @@ class KissOdometry(GuardedOdometry):
         n, _ = residuals(
             source, np.zeros(len(source), np.int64), *self._shadow.index(), 1.0 / self.voxel, (3.0 * sigma) ** 2, guess
         )  # fmt: skip
-        self._pending_ms = (time.perf_counter() - t0) * 1e3
+        self._pending_ms = self._health_since(t0)
         if n < MIN_CORRESPONDENCES:
             raise OdometryFailure(
                 f"only {n} of {len(source)} source points have a map point within 3 sigma ({3 * sigma:.2f} m) "
