@@ -31,10 +31,11 @@ class FilterConfig(BaseModel):
     (``representative``); KISS-ICP registers ground on a 5 m grid, buildings on 4 m and vegetation
     on 3 m cubes and all the rest. Urban drives, seeds 1 / 2: ATE x1.04 / x1.04 raw at time
     x0.52 / x0.53 (the next frame's PRC beside the registration). Ground on 3 m, registered on
-    10 m (the policy before) was faster (~x0.08 less) but lost accuracy (ATE x1.38 / x1.34): sparse ground
-    holds the height and tilt too loosely. Registered ground on 3 m was more accurate still
-    (x0.82 / x0.95) but lost a 16-beam walk read at one sweep in 30 (3 m steps) that 5 m and 10 m
-    hold: many registered ground points pull a poor initial guess towards staying put.
+    10 m (the policy before) was faster (x0.03 less here, x0.08 on KITTI) but lost accuracy (ATE
+    x1.38 / x1.34): sparse ground holds the height and tilt too loosely. Registered ground on 3 m
+    was more accurate still (x0.82 / x0.95) but lost a 16-beam walk read at one sweep in 30 (3 m
+    steps) that 5 m and 10 m hold: many registered ground points pull a poor initial guess towards
+    staying put.
     ``FilterConfig(cell=3.0, source_cell={"ground": 10.0, "building": 4.0, "vegetation": 3.0})``
     restores the policy before; ``FilterConfig(cell=1.0, sample={}, sample_other=0, source_cell={})``
     is the earliest (noise dropped, ground on 1 m, all else kept)."""

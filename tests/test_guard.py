@@ -223,6 +223,27 @@ def test_work_beside_the_health_residuals_is_not_credited():
     assert _without((0.0, 10.0), [(-1.0, 11.0)]) == []
 
 
+@pytest.mark.parametrize("kind", ["kiss", "classaware"])
+def test_a_frame_too_sparse_to_register_gets_the_predicted_pose_and_the_run_goes_on(kind):
+    """A sweep cut to a handful of points (or emptied by a filter) between full ones: that frame
+    takes the constant-velocity prediction, is flagged and counted, leaves the map alone, and the
+    next full frame registers as usual."""
+    rng = np.random.default_rng(5)
+    room = _room(rng)
+    step = np.array([0.5, 0.0, 0.0])
+    odo = KissOdometry(OdometryConfig(deskew=False)) if kind == "kiss" else ClassAwareOdometry(OdometryConfig())
+    for k in range(4):  # the sensor moves +0.5 m in x per frame: the room moves -0.5 m
+        odo.register(room - k * step, None, None, float(k))
+    n_map = odo.kiss.local_map.point_cloud().shape[0] if kind == "kiss" else odo.map.n
+    predicted = odo.poses[-1] @ (np.linalg.inv(odo.poses[-2]) @ odo.poses[-1])
+    pose = odo.register((room - 4 * step)[:12], None, None, 4.0)  # 12 points
+    np.testing.assert_allclose(pose, predicted, atol=1e-12)
+    assert odo.coasted == [4] and odo.health[-1].suspicious and "only" in odo.health[-1].why
+    assert (odo.kiss.local_map.point_cloud().shape[0] if kind == "kiss" else odo.map.n) == n_map
+    pose = odo.register(room - 5 * step, None, None, 5.0)
+    assert abs(pose[0, 3] - 2.5) < 0.05 and not odo.health[-1].suspicious and len(odo.poses) == 6
+
+
 def test_point_times_on_another_clock_are_named():
     """Per-point times in epoch seconds beside frame times from 0: a clear reason, not an empty
     registration after deskewing every point kilometres away."""

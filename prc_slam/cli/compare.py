@@ -44,9 +44,18 @@ from prc_slam.cli.common import (
 
 def warn_failed(metrics: dict) -> None:
     """One warning per odometry variant that stopped before the last frame (otherwise only
-    the JSON's ``failed`` and the table's frame count would tell)."""
+    the JSON's ``failed`` and the table's frame count would tell), and one per variant that gave
+    frames too sparse to register the predicted pose."""
     total = metrics.get("frames")
     for name, m in metrics.get("variants", {}).items():
+        if m.get("coasted_frames"):
+            frames = m["coasted_frames"]
+            log.warning(
+                "odometry %s: %d frame(s) with too few points to register took the predicted pose (frames %s)",
+                name,
+                len(frames),
+                ", ".join(map(str, frames[:10])) + (" ..." if len(frames) > 10 else ""),
+            )
         if m.get("failed"):
             of = f" of {total}" if total is not None else ""
             log.warning(

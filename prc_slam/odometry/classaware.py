@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam import labels as L
 from prc_slam.odometry.guard import OdometryFailure, check_pose, is_rigid, nearest_map_point
-from prc_slam.odometry.kiss import GuardedOdometry, OdometryConfig, kiss_config
+from prc_slam.odometry.kiss import MIN_SOURCE_POINTS, GuardedOdometry, OdometryConfig, kiss_config
 from prc_slam.voxels import _rehash, _slot
 
 #: class groups and the codes they hold; codes not listed fall into "other"
@@ -459,6 +459,12 @@ class ClassAwareOdometry(GuardedOdometry):
             raise OdometryFailure(f"adaptive threshold is {sigma}")
         initial = self.last_pose @ self.last_delta
         counts = np.zeros(len(GROUP_NAMES), np.int64)
+        if self.map.n and len(source) < MIN_SOURCE_POINTS:
+            check_pose(initial, self.last_pose, dt, self.config.guard, "the prediction")
+            self.last_pose = initial  # the constant velocity carries on
+            self.correspondences.append(counts)
+            self.iterations.append(0)
+            return self._coast(len(source), initial, sigma, dropped)
         new_pose, iters = initial, 0
         if self.map.n and len(source):
             new_pose, counts, _, iters = icp(

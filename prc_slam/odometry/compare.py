@@ -138,6 +138,8 @@ class CompareResult:
                 "ms_per_frame_serial": float(np.mean(run.ms_per_frame(serial=True))) if n else None,
                 "ms_overlapped": float(np.mean(run.hidden[:n])) if n and len(run.hidden) >= n else None,
                 "ms_health": float(np.mean(run.odometry.health_ms)) if run.odometry.health_ms else None,
+                # frames given the predicted pose, too few points to register (kiss.MIN_SOURCE_POINTS)
+                "coasted_frames": [i for i in run.odometry.coasted if i < n],
             }
             if run.failed is not None:
                 m["failed_at_frame"] = run.failed["frame"]

@@ -204,6 +204,10 @@ def deskew_points(points: np.ndarray, times: np.ndarray, t_ref: float, dt: float
 
 #: fewer correspondences than this at the initial guess: the frame cannot be registered
 MIN_CORRESPONDENCES = 6
+#: a frame with fewer ICP source points than this (after voxelising) is not registered: its pose is
+#: the constant-velocity prediction, the map is left as it was, and the frame is flagged and counted
+#: (a sweep cut short, or one whose points a filter removed); six unknowns need far more points
+MIN_SOURCE_POINTS = 30
 
 
 class FrameClock:
@@ -253,6 +257,7 @@ class GuardedOdometry:
         self.clock = FrameClock()
         self.monitor = DivergenceMonitor(self.config.guard)
         self._pending_ms = 0.0  # guard time spent before the health of the frame is recorded
+        self.coasted: list[int] = []  # frames (indices into poses) given the predicted pose, not registered
         #: the ``time.perf_counter()`` intervals of the last frame's health work (not registration)
         self.health_spans: list[tuple[float, float]] = []
 
@@ -294,6 +299,18 @@ class GuardedOdometry:
         if not is_rigid(last_delta):
             raise OdometryFailure("the constant-velocity motion is not a finite rigid transform")
         return deskew_points(pts, times, t_ref, self.clock.deskew_interval(), last_delta), np.zeros(0)
+
+    def _coast(self, n_source: int, predicted: np.ndarray, sigma: float, dropped: int) -> np.ndarray:
+        """Give the frame the predicted pose without registering it (:data:`MIN_SOURCE_POINTS`)."""
+        why = f"only {n_source} ICP source points: pose predicted at constant velocity, map not updated"
+        h = FrameHealth(source_points=n_source, threshold_m=float(sigma), dropped_nonfinite=dropped, suspicious=True,
+                        why=why)  # fmt: skip
+        self.health.append(h)
+        self.health_ms.append(self._pending_ms)
+        self._pending_ms = 0.0
+        self.coasted.append(len(self.poses))
+        self.poses.append(predicted.copy())
+        return predicted.copy()
 
     def _health(self, source, groups, pose, sigma, dropped, iterations, gmap) -> FrameHealth:
         t0 = time.perf_counter()
@@ -404,6 +421,10 @@ class KissOdometry(GuardedOdometry):
             raise OdometryFailure(f"adaptive threshold is {sigma}")
         if self._shadow is None:
             self._shadow = GroupVoxelMap(self.voxel, self.config.max_range, self.config.max_points_per_voxel)
+        if self._shadow.n and len(source) < MIN_SOURCE_POINTS:
+            check_pose(initial_guess, kiss.last_pose, dt, self.config.guard, "the prediction")
+            kiss.last_pose = initial_guess  # the constant velocity carries on
+            return self._coast(len(source), initial_guess, sigma, dropped)
         self._check_correspondences(source, initial_guess, sigma)
         new_pose = np.asarray(
             kiss.registration.align_points_to_map(
