@@ -139,7 +139,8 @@ def plot_trajectories(result: CompareResult, path: Path) -> None:
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title("top view")
-    ax.legend()
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend()
     if result.gt_poses is not None:
         ax = axes[0, 1]
         gt = result.gt_poses
@@ -155,7 +156,10 @@ def plot_trajectories(result: CompareResult, path: Path) -> None:
         ax.set_xlabel("distance along the path (m)")
         ax.set_ylabel("position error after alignment (m)")
         ax.set_title("error along the path")
-        ax.legend()
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend()
+        else:  # fewer than 3 poses per variant: nothing to align
+            ax.text(0.5, 0.5, "fewer than 3 poses", ha="center", va="center", transform=ax.transAxes)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

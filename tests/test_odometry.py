@@ -119,13 +119,27 @@ def test_filter_with_more_cells_than_its_first_table_keeps_every_cell():
 def test_partial_yaml_config_changes_only_its_keys(tmp_path):
     base = Config(prc=PRCConfig.preset("multibeam"))
     path = tmp_path / "c.yaml"
-    path.write_text("filter: {cell: 1.0}\n")
+    path.write_text("filter: {cell: 3.0}\n")  # (not the default)
     cfg = Config.from_yaml(path, base)
-    assert cfg.prc == base.prc and cfg.filter.cell == 1.0
+    assert base.filter.cell != 3.0 and cfg.prc == base.prc and cfg.filter.cell == 3.0
     assert cfg.filter.source_cell == base.filter.source_cell
     path.write_text("filter: {source_cell: {}}\n")  # a key given replaces the base's value whole
     assert Config.from_yaml(path, base).filter.source_cell == {}
     assert Config.from_yaml(path).prc == Config().prc  # without a base: the defaults
+
+
+@pytest.mark.parametrize("frames", [1, 2])
+def test_plot_of_a_run_too_short_to_align_warns_nothing(short_drive, tmp_path, frames):
+    """One or two frames: nothing to align for the error plot, and no matplotlib warning."""
+    import warnings
+
+    from prc_slam.report import plot_trajectories
+
+    result = run_compare([short_drive[i] for i in range(frames)], Config(), ["raw"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plot_trajectories(result, tmp_path / "t.png")
+    assert (tmp_path / "t.png").stat().st_size > 0
 
 
 def test_kiss_config_ignores_environment(monkeypatch):
