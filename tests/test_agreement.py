@@ -67,9 +67,21 @@ def test_a_variant_that_stops_short_is_flagged_and_the_right_one_is_not():
     d = mon.as_dict()["good vs short"]
     assert d["first_frame"] == 2 and d["frames"] == 6 and d["suspects"] == ["short"]
     assert d["max_difference_m"] == pytest.approx(2.5)
-    late = AgreementMonitor(GuardConfig(agreement_window=5, warm_up=4), voxel=1.0)  # nothing before warm_up
+    # before warm_up the bounds are EARLY_FACTOR (3) times wider: 0.5 k m against 3 (0.5 + 0.05 k) m passes
+    late = AgreementMonitor(GuardConfig(agreement_window=5, warm_up=4), voxel=1.0)
     seen = [late.update(k, scene - [k * 1.0, 0, 0], {n: p[: k + 1] for n, p in poses.items()}) for k in range(8)]
     assert [bool(f) for f in seen] == [False] * 4 + [True] * 4
+
+
+def test_a_variant_lost_on_the_first_keyframe_is_flagged_there():
+    """Keyframes 4 m apart; ``stuck`` registers none of the first step: 4 m against the early
+    bound 3 (0.5 + 0.05 * 4) = 2.1 m, flagged at frame 1 although the warm-up lasts 5 frames."""
+    scene = _scene(2)
+    mon = AgreementMonitor(GuardConfig(warm_up=5), voxel=1.0)
+    poses = {"good": [np.eye(4), _translation(4.0)], "stuck": [np.eye(4), _translation(0.0)]}
+    assert mon.update(0, scene, {n: p[:1] for n, p in poses.items()}) == {}
+    flags = mon.update(1, scene - [4.0, 0.0, 0.0], poses)
+    assert set(flags) == {"stuck"} and "disagrees by 4.00 m" in flags["stuck"]
 
 
 def test_agreeing_variants_are_not_flagged():
