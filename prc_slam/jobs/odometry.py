@@ -126,16 +126,16 @@ def run_odometry(
 
 
 def unchecked_health_note(frames: int | None, warm_up: int) -> str | None:
-    """A note for runs too short for the health checks: the divergence monitor and the variants'
-    agreement start at frame ``warm_up``, counting from 0 (:class:`~prc_slam.odometry.guard.GuardConfig`),
-    so a run of that many frames or fewer is reported 'ok' without a check (KITTI 00 at ``--stride 5``,
-    four keyframes: prc+classaware stopped 3.8 m short of the first 4.3 m step, 'ok')."""
+    """A note for runs too short for the health checks: the divergence monitor starts at frame
+    ``warm_up``, counting from 0 (:class:`~prc_slam.odometry.guard.GuardConfig`), and the variants'
+    agreement holds them to bounds three times wider before it (:mod:`prc_slam.odometry.agreement`),
+    so a run of that many frames or fewer is 'ok' without the full checks (KITTI 00 at
+    ``--stride 5``, four keyframes: prc+classaware stopped 3.8 m short of the first 4.3 m step)."""
     if not frames or frames > warm_up:
         return None
     return (
-        f"only {frames} frame{'s' if frames != 1 else ''}: the health checks (divergence, agreement of the "
-        f"variants) start at frame {warm_up}, counting from 0, so no frame of this run was checked and "
-        "'ok' only means 'did not stop'"
+        f"only {frames} frame{'s' if frames != 1 else ''}: the health checks start at frame {warm_up}, counting "
+        "from 0 (before it only variants that part grossly are flagged), so 'ok' here means 'did not stop'"
     )
 
 
