@@ -186,15 +186,13 @@ class OusterSequence(SequenceBase):
     def __getitem__(self, i: int) -> Scan:
         scan = read_ouster_npz(self.files[i], destaggered=self.destaggered, name=f"{i:06d}")
         if len(self.files) > 1 and not self._mixed_warned:
-            self._check_same_sensor(i)
+            self._check_same_sensor(i, np.degrees(scan.sensor.altitude))
         return scan
 
-    def _check_same_sensor(self, i: int) -> None:
-        """Warn once when a sweep's beam table is not the first sweep's: the folder mixes sensors
-        (before, the decoded folder of three Ouster models ran as one sequence, and odometry
-        stopped at frame 1 on a frame time going back, without a word about the cause)."""
-        with np.load(self.files[i]) as z:
-            alt = np.asarray(z["beam_altitude_deg"], dtype=np.float64)
+    def _check_same_sensor(self, i: int, alt: np.ndarray) -> None:
+        """Warn once when a sweep's beam table (``alt``, degrees) is not the first sweep's: the
+        folder mixes sensors (before, the decoded folder of three Ouster models ran as one sequence,
+        and odometry stopped at frame 1 on a frame time going back, without a word about the cause)."""
         if self._beams is None:
             self._beams = (i, alt)
             return
