@@ -270,6 +270,29 @@ def test_cli_compare_and_odometry(short_drive, tmp_path):
     assert list(json.loads((tmp_path / "o.json").read_text())["variants"]) == ["raw"]
 
 
+def test_compare_with_a_skipped_frame_says_which_frame_each_line_is(short_drive, tmp_path):
+    """A frame that cannot be read is skipped: the KITTI-format trajectories (one line per
+    registered frame, no times) are then shorter than the input, so ``frames.txt`` names the input
+    frame of each line and report.md lists the skip."""
+    import shutil
+
+    root = tmp_path / "seq"
+    shutil.copytree(short_drive.root, root)
+    (root / "frames" / "000002.npz").write_bytes(b"PK\x03\x04 cut short")
+    out = tmp_path / "cmp"
+    res = CliRunner().invoke(app, ["compare", str(root), "--out", str(out), "--max-frames", "6"])
+    assert res.exit_code == 0, res.output
+    lines = [ln.split(maxsplit=2) for ln in (out / "frames.txt").read_text().splitlines() if not ln.startswith("#")]
+    assert [int(ln[0]) for ln in lines] == list(range(5))
+    assert [ln[2] for ln in lines] == ["000000", "000001", "000003", "000004", "000005"]
+    times = np.loadtxt(root / "times.txt")
+    np.testing.assert_allclose([float(ln[1]) for ln in lines], times[[0, 1, 3, 4, 5]], atol=1e-6)
+    for name in ("raw", "prc", "ground_truth"):
+        assert len(np.loadtxt(out / f"{name}_poses_kitti.txt")) == 5
+    report = (out / "report.md").read_text()
+    assert "## Skipped frames (1)" in report and "input frame 2" in report and "000002.npz" in report
+
+
 def test_kiss_threads_from_the_environment(monkeypatch):
     """KISS-ICP's thread count: the config's when set, else PRC_SLAM_THREADS (a positive
     integer; anything else means KISS-ICP's own choice, 0)."""

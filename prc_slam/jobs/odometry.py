@@ -140,7 +140,8 @@ def unchecked_health_note(frames: int | None, warm_up: int) -> str | None:
 
 
 def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> list[Path]:
-    """report.md, metrics.json, trajectories (KITTI and TUM), config.yaml and trajectories.png."""
+    """report.md, metrics.json, trajectories (KITTI and TUM), config.yaml, trajectories.png and
+    frames.txt (the time and input frame of each line of the KITTI-format trajectories)."""
     from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
     from prc_slam.report import classification_section, write_compare_outputs
 
@@ -149,8 +150,23 @@ def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> li
     if extra:
         metrics.update(extra)
         write_json(out / "metrics.json", metrics)
+    # the KITTI-format files have one line per registered frame and no times: which frame each is
+    frames_txt = out / "frames.txt"
+    frames_txt.write_text(
+        "# line of the *_poses_kitti.txt files, time (s), input frame\n"
+        + "".join(
+            f"{i} {t:.9f} {name}\n" for i, (name, t) in enumerate(zip(run.result.names, run.result.times, strict=True))
+        )
+    )
     with (out / "report.md").open("a") as f:
         f.write("\n![trajectories](trajectories.png)\n")
+        skips = run.metrics.get("skips") or []
+        if skips:
+            f.write(
+                f"\n## Skipped frames ({len(skips)})\n\nThe KITTI-format trajectories have one line per registered "
+                "frame, so they are shorter than the input: `frames.txt` names the frame of each line (the TUM "
+                "files carry the times).\n\n" + "".join(f"- input frame {s['index']}: {s['reason']}\n" for s in skips)
+            )
         if "health_note" in run.metrics:
             f.write(f"\n**Health not checked**: {run.metrics['health_note']}.\n")
         if run.prc is not None:
@@ -158,7 +174,7 @@ def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> li
         if run.online is not None:
             f.write(classification_section(run.online, "Online detectors against the reference"))
     run.metrics = metrics
-    return [out / "report.md", out / "metrics.json", out / "trajectories.png", out / "config.yaml"]
+    return [out / "report.md", out / "metrics.json", out / "trajectories.png", out / "config.yaml", frames_txt]
 
 
 def trajectory_file(run: OdometryRun, name: str, path: Path, pose_format: str = "kitti") -> Path:
