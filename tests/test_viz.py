@@ -261,3 +261,32 @@ def test_viewer_that_never_answers_costs_only_the_recording(tmp_path):
     assert "the recording could not be delivered" in run.stdout + run.stderr
     assert "Traceback" not in run.stdout + run.stderr
     assert (tmp_path / "out" / "metrics.json").is_file() and (tmp_path / "out" / "report.md").is_file()
+
+
+@pytest.mark.parametrize("offset", [(0.0, 0.0, 0.0), (512_345.678, 5_412_345.321, 312.5)])
+def test_classified_map_far_from_the_origin_keeps_its_millimetres(tmp_path, offset):
+    """Rerun stores float32 positions (0.5 m apart at a UTM northing): a geo-referenced map is
+    logged relative to a display origin, said in the text log, and adding it back gives the
+    points to a millimetre; a map near the origin is logged as it is."""
+    rng = np.random.default_rng(0)
+    local = np.stack(np.meshgrid(np.arange(20.0), np.arange(20.0), [0.0, 1.0]), -1).reshape(-1, 3)
+    local += rng.uniform(-0.3, 0.3, local.shape)  # 1 m apart: none thinned away
+    pts = local + np.asarray(offset)
+    rrd = tmp_path / "map.rrd"
+    rec, _ = open_recording(rrd=str(rrd))
+    sink = RerunSink(rec, VizConfig(map_voxel=0.1))
+    sink.log_map(pts[:400], np.full(400, 1, np.uint8), part=0)
+    sink.log_map(pts[400:], np.full(len(pts) - 400, 2, np.uint8), part=1)
+    rec.flush()
+    rec.disconnect()
+    got = [np.array(rows_by_frame(rrd, f"/world/map_classified/part_{k}", "Points3D:positions")[None]) for k in (0, 1)]
+    got = np.concatenate([np.array(g, dtype=np.float64) for g in got]) + sink.map_origin
+    assert got.shape == pts.shape
+    np.testing.assert_allclose(np.sort(got, axis=0), np.sort(pts, axis=0), atol=1e-3)
+    logs = " ".join(str(v) for v in rows_by_frame(rrd, "/logs", "TextLog:text").values())
+    if offset[0]:
+        assert np.all(np.abs(pts - sink.map_origin).max(axis=0) < 1e3)
+        # the first chunk's median (x 9.5 m and y 4.5 m into the grid), rounded to 100 m
+        assert "shifted by (-512400, -5412300, -300) m" in logs
+    else:
+        assert not sink.map_origin.any() and "shifted" not in logs

@@ -24,6 +24,8 @@ Entity paths::
     metrics/icp_threshold/V, metrics/icp/V/...    Scalars: adaptive threshold, inlier fraction, residual,
                                   divergence flag
     metrics/error/position_m      Scalars: position error against the ground truth
+    world/map_classified/part_N   Points3D, a classified map (shifted to a display origin when
+                                  geo-referenced: :attr:`RerunSink.map_origin`, in the text log)
     logs                          TextLog: warnings and skips
 
 One AnnotationContext (the label codes, names and colours of ``prc_slam.labels``) at the root
@@ -39,6 +41,19 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from prc_slam import labels as L
+
+#: coordinates beyond this (m) lose more than a millimetre in float32 (its spacing there is 1 mm)
+FLOAT32_EXACT_M = 1.0e4
+
+
+def display_origin(points: np.ndarray, step: float = 100.0) -> np.ndarray:
+    """Where to put the origin of a cloud shown in float32: zero when every coordinate is within
+    :data:`FLOAT32_EXACT_M`, else the median point rounded to ``step`` metres (geo-referenced
+    clouds: UTM eastings ~5e5 m and northings ~5e6 m are 0.03 and 0.5 m apart in float32)."""
+    points = np.asarray(points, dtype=np.float64)
+    if not len(points) or np.abs(points).max() <= FLOAT32_EXACT_M:
+        return np.zeros(3)
+    return np.round(np.median(points, axis=0) / step) * step
 
 
 @dataclass
@@ -129,6 +144,8 @@ class RerunSink:
         self._positions: dict[str, list[np.ndarray]] = {}
         self._gt: list[np.ndarray] = []
         self._pose: np.ndarray | None = None
+        #: subtracted from every classified-map point before logging (:func:`display_origin`)
+        self.map_origin: np.ndarray | None = None
         self.rec.log("/", annotation_context(), static=True)
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
@@ -168,10 +185,26 @@ class RerunSink:
 
     def log_map(self, points: np.ndarray, labels: np.ndarray, part: int = 0) -> None:
         """One chunk of a classified map (paper 004), thinned to ``config.map_voxel``, static:
-        ``world/map_classified/part_N`` coloured by class."""
+        ``world/map_classified/part_N`` coloured by class. Rerun stores float32 positions, which
+        are 0.5 m apart at UTM northings: a map far from the origin is shown shifted by
+        :attr:`map_origin` (set by the first chunk, said in the text log)."""
         points = np.asarray(points, dtype=np.float64)
         ok = np.isfinite(points).all(axis=1)
         pts, lab = points[ok], np.asarray(labels)[ok]
+        if self.map_origin is None and len(pts):
+            self.map_origin = display_origin(pts)
+            if self.map_origin.any():
+                x, y, z = self.map_origin
+                self.rec.log(
+                    "logs",
+                    rr.TextLog(
+                        f"the classified map is shown shifted by ({-x:.0f}, {-y:.0f}, {-z:.0f}) m: Rerun keeps "
+                        "float32 coordinates, too coarse at these values; add them back to read positions",
+                        level=rr.TextLogLevel.INFO,
+                    ),
+                )
+        if self.map_origin is not None:
+            pts = pts - self.map_origin
         keep = _thin_index(pts, self.config.map_voxel)
         pts, lab = pts[keep], lab[keep]
         self.rec.log(
