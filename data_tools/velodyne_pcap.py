@@ -5,7 +5,14 @@ points with ``x y z intensity time column ring return_type``; every sweep then g
 one organiser (:class:`data_tools.organize.Organizer`) with its ``ring`` field and per-point times,
 so labels come back one per decoded point, in decoding order. The sensor model is read from the
 packets' factory byte (VLP-16, VLP-32C, HDL-32E, Puck Hi-Res, VLS-128, Alpha Prime); HDL-64E
-captures carry their calibration in the stream, which the decoder reads itself.
+captures carry their calibration in the stream, which is read from the status bytes.
+
+The capture is read by :class:`Capture` (classic pcap with micro- or nanosecond stamps in either
+byte order, or pcapng): only Velodyne data packets of one sensor (the sender and destination
+port of the first data packet) reach the decoder; position (GPS, port 8308) packets and other
+traffic are skipped, data packets of a second sensor are an error naming both (their packets
+would interleave into one sweep), and a file cut inside a record is read up to there, with a
+warning.
 
 Frame ``i`` is the ``i``-th sweep the decoder emits; an index of sweep stamps is built once when
 the capture is opened. Reading in order streams the file once; going back reopens it.
@@ -14,8 +21,10 @@ the capture is opened. Reading in order streams the file once; going back reopen
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import struct
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -52,40 +61,155 @@ MODEL_LASERS = {
 }
 
 
-def udp_payloads(path: str | Path, limit: int = 64) -> list[bytes]:
-    """The first ``limit`` UDP payloads of a classic libpcap capture (Ethernet, Linux SLL or raw IP
-    link layers, IPv4, optional VLAN tags). Returns [] for anything else (e.g. pcapng)."""
-    out: list[bytes] = []
-    try:
-        with Path(path).open("rb") as f:
-            head = f.read(24)
-            if len(head) < 24:
-                return out
-            magic = head[:4]
-            if magic in (b"\xd4\xc3\xb2\xa1", b"\x4d\x3c\xb2\xa1"):
-                endian = "<"
-            elif magic in (b"\xa1\xb2\xc3\xd4", b"\xa1\xb2\x3c\x4d"):
-                endian = ">"
-            else:
-                return out
-            link = struct.unpack(endian + "I", head[20:24])[0] & 0x0FFFFFFF
-            while len(out) < limit:
-                rec = f.read(16)
-                if len(rec) < 16:
-                    break
-                incl = struct.unpack(endian + "IIII", rec)[2]
-                frame = f.read(incl)
-                if len(frame) < incl:
-                    break
-                payload = _udp_payload(frame, link)
-                if payload is not None:
-                    out.append(payload)
-    except OSError:
-        return out
-    return out
+#: Detection reads at most this many packets / bytes from the start of a capture.
+DETECT_PACKETS = 4000
+DETECT_BYTES = 32 * 2**20
+#: Another source with at least this many Velodyne data packets makes the capture ambiguous.
+OTHER_SOURCE_PACKETS = 10
+PCAP_MAGIC = {  # magic (as read little endian) -> byte order, seconds per fraction unit
+    0xA1B2C3D4: ("<", 1e-6),
+    0xA1B23C4D: ("<", 1e-9),
+    0xD4C3B2A1: (">", 1e-6),
+    0x4D3CB2A1: (">", 1e-9),
+}
+PCAPNG_SHB = 0x0A0D0D0A
 
 
-def _udp_payload(frame: bytes, link: int) -> bytes | None:
+class Capture:
+    """The UDP/IPv4 packets of a packet capture: classic libpcap (micro- or nanosecond stamps,
+    either byte order) or pcapng, with Ethernet (VLAN tags too), Linux cooked or raw IP links.
+
+    Iterating yields ``(stamp_s, source, payload)`` per UDP packet, ``source`` being
+    ``"src-ip -> port dst-port"``. A file that ends inside a record stops the iteration and sets
+    :attr:`truncated` (the packets before it are kept). Non-UDP frames are skipped.
+
+    Raises
+    ------
+    DataError
+        Not a pcap / pcapng file (on iteration).
+    """
+
+    def __init__(self, path: str | Path, *, max_packets: int | None = None, max_bytes: int | None = None) -> None:
+        self.path = Path(path)
+        self.max_packets = max_packets
+        self.max_bytes = max_bytes
+        self.truncated = False
+        self.format = ""
+
+    def __iter__(self) -> Iterator[tuple[float, str, bytes]]:
+        self.truncated = False
+        count = 0
+        try:
+            with self.path.open("rb") as f:
+                for stamp, link, frame in self._frames(f):
+                    hit = _udp(frame, link)
+                    if hit is not None:
+                        yield stamp, hit[0], hit[1]
+                    count += 1
+                    if self.max_packets is not None and count >= self.max_packets:
+                        return
+                    if self.max_bytes is not None and f.tell() >= self.max_bytes:
+                        return
+        except OSError as exc:
+            raise DataError(f"{self.path}: cannot read capture: {exc}") from exc
+
+    def _frames(self, f) -> Iterator[tuple[float, int, bytes]]:
+        head = f.read(24)
+        if len(head) < 4:
+            raise DataError(f"{self.path}: not a pcap or pcapng capture (file too short)")
+        magic = struct.unpack("<I", head[:4])[0]
+        if magic == PCAPNG_SHB:
+            self.format = "pcapng"
+            f.seek(0)
+            yield from self._pcapng(f)
+            return
+        if magic not in PCAP_MAGIC or len(head) < 24:
+            raise DataError(f"{self.path}: not a pcap or pcapng capture (magic {head[:4].hex()})")
+        self.format = "pcap"
+        endian, unit = PCAP_MAGIC[magic]
+        link = struct.unpack(endian + "I", head[20:24])[0] & 0x0FFFFFFF
+        while True:
+            rec = f.read(16)
+            if not rec:
+                return
+            if len(rec) < 16:
+                self.truncated = True
+                return
+            sec, frac, incl, _orig = struct.unpack(endian + "IIII", rec)
+            frame = f.read(incl)
+            if len(frame) < incl:
+                self.truncated = True
+                return
+            yield sec + frac * unit, link, frame
+
+    def _pcapng(self, f) -> Iterator[tuple[float, int, bytes]]:
+        endian = "<"
+        links: list[tuple[int, float]] = []  # per interface: link type, seconds per stamp unit
+        last = 0.0
+        while True:
+            head = f.read(8)
+            if not head:
+                return
+            if len(head) < 8:
+                self.truncated = True
+                return
+            btype = struct.unpack(endian + "I", head[:4])[0]
+            if btype == PCAPNG_SHB:  # a section: its byte-order magic decides the endianness
+                bom = f.read(4)
+                if len(bom) < 4:
+                    self.truncated = True
+                    return
+                endian = "<" if struct.unpack("<I", bom)[0] == 0x1A2B3C4D else ">"
+                length = struct.unpack(endian + "I", head[4:8])[0]
+                body = f.read(length - 12)
+                links = []
+                if len(body) < length - 12:
+                    self.truncated = True
+                    return
+                continue
+            length = struct.unpack(endian + "I", head[4:8])[0]
+            if length < 12 or length % 4:
+                raise DataError(f"{self.path}: damaged pcapng block (length {length}) at byte {f.tell() - 8}")
+            body = f.read(length - 8)
+            if len(body) < length - 8:
+                self.truncated = True
+                return
+            body = body[:-4]
+            if btype == 1:  # interface description
+                link = struct.unpack(endian + "H", body[:2])[0]
+                links.append((link, _tsresol(body[8:], endian)))
+            elif btype in (6, 2):  # enhanced / obsolete packet block
+                if btype == 6:
+                    iface, hi, lo, cap = struct.unpack(endian + "IIII", body[:16])
+                else:
+                    iface, _drops, hi, lo, cap = struct.unpack(endian + "HHIII", body[:16])
+                data = body[20 : 20 + cap]
+                if iface >= len(links):
+                    continue
+                link, unit = links[iface]
+                last = ((hi << 32) | lo) * unit
+                yield last, link, data
+            elif btype == 3 and links:  # simple packet block: no stamp, first interface
+                orig = struct.unpack(endian + "I", body[:4])[0]
+                yield last, links[0][0], body[4 : 4 + orig]
+
+
+def _tsresol(options: bytes, endian: str) -> float:
+    """Seconds per stamp unit of a pcapng interface (option ``if_tsresol``, default microseconds)."""
+    k = 0
+    while k + 4 <= len(options):
+        code, size = struct.unpack(endian + "HH", options[k : k + 4])
+        if code == 0:
+            break
+        if code == 9 and size >= 1:
+            v = options[k + 4]
+            return 2.0 ** -(v & 0x7F) if v & 0x80 else 10.0**-v
+        k += 4 + size + (-size % 4)
+    return 1e-6
+
+
+def _udp(frame: bytes, link: int) -> tuple[str, bytes] | None:
+    """``("src-ip -> port dst-port", payload)`` of a UDP/IPv4 frame, else None."""
     if link == 1:  # Ethernet
         off, ethertype = 14, frame[12:14]
         while ethertype in (b"\x81\x00", b"\x88\xa8") and len(frame) >= off + 4:  # VLAN tags
@@ -99,25 +223,47 @@ def _udp_payload(frame: bytes, link: int) -> bytes | None:
     if ethertype != b"\x08\x00" or len(frame) < off + 20:
         return None
     ihl = (frame[off] & 0x0F) * 4
-    if frame[off + 9] != 17:  # not UDP
+    if frame[off + 9] != 17 or len(frame) < off + ihl + 8:  # not UDP
         return None
+    src = ".".join(str(b) for b in frame[off + 12 : off + 16])
     udp = off + ihl
-    return frame[udp + 8 :]
+    dst_port = int.from_bytes(frame[udp + 2 : udp + 4], "big")
+    return f"{src} -> port {dst_port}", frame[udp + 8 :]
+
+
+def is_data_packet(payload: bytes) -> bool:
+    """A Velodyne data packet: 1206 bytes, first block flag 0xFFEE."""
+    return len(payload) == DATA_PACKET_SIZE and payload[:2] == b"\xff\xee"
+
+
+def udp_payloads(path: str | Path, limit: int = 64) -> list[bytes]:
+    """The first ``limit`` Velodyne data packets among the first :data:`DETECT_PACKETS` packets
+    (:data:`DETECT_BYTES`) of a capture (pcap or pcapng); [] when there are none or the file is
+    not a capture."""
+    out: list[bytes] = []
+    try:
+        for _t, _src, payload in Capture(path, max_packets=DETECT_PACKETS, max_bytes=DETECT_BYTES):
+            if is_data_packet(payload):
+                out.append(payload)
+                if len(out) >= limit:
+                    break
+    except DataError:
+        return out
+    return out
 
 
 def looks_like_velodyne(path: str | Path) -> bool:
-    """True when the capture's first UDP packets include Velodyne data packets (1206 bytes,
-    first block flag 0xFFEE)."""
-    return any(len(p) == DATA_PACKET_SIZE and p[:2] == b"\xff\xee" for p in udp_payloads(path))
+    """True when the capture's first packets include Velodyne data packets (1206 bytes, first
+    block flag 0xFFEE), whatever other traffic comes before them."""
+    return bool(udp_payloads(path, limit=1))
 
 
 def detect_model(path: str | Path) -> str | None:
     """The sensor model from the factory byte of the first data packet (None for the HDL-64E,
     whose packets carry no factory byte; the decoder detects it and its calibration itself)."""
-    for p in udp_payloads(path):
-        if len(p) == DATA_PACKET_SIZE and p[:2] == b"\xff\xee":
-            entry = FACTORY_MODELS.get(p[-1])
-            return None if entry is None else entry[0]
+    for p in udp_payloads(path, limit=1):
+        entry = FACTORY_MODELS.get(p[-1])
+        return None if entry is None else entry[0]
     return None
 
 
@@ -152,7 +298,15 @@ class VelodynePcapSequence(SequenceBase):
         self.root = path
         self.name = path.stem
         self.poses = None
-        model = model or detect_model(path)
+        self.source: str | None = None  # "ip -> port n" of the sensor read (the first data packet's)
+        self._others: dict[str, int] = {}
+        self.truncated = False
+        first = next((payload for _t, payload in self._packets()), None)
+        if first is None:
+            raise DataError(f"{path}: no Velodyne data packets (1206-byte UDP payloads starting 0xFFEE) in the capture")
+        if model is None:
+            entry = FACTORY_MODELS.get(first[-1])
+            model = None if entry is None else entry[0]
         if model is not None and model not in vd.Model.__members__:
             raise DataError(f"{path}: unknown Velodyne model {model!r}; choose from {list(vd.Model.__members__)}")
         self.model = model
@@ -162,19 +316,87 @@ class VelodynePcapSequence(SequenceBase):
                 self.calibration = vd.Calibration.read(str(calibration))
             except (RuntimeError, ValueError, OSError) as exc:
                 raise DataError(f"{path}: cannot read Velodyne calibration {calibration}: {exc}") from exc
-        self.rows = MODEL_LASERS.get(model) if model else None
+        elif model is None:
+            self._hdl64e_calibration()
+        self.rows = MODEL_LASERS.get(self.model) if self.model else None
         from data_tools.organize import Organizer
 
         self.organizer = Organizer(rows=self.rows, source_name=str(path))
         stamps = [t for t, _ in self._sweeps()]
+        self._check_sources()
+        if self.truncated:
+            log.warning("%s: the capture ends inside a packet record (truncated?); read up to there", path)
         if not stamps:
-            raise DataError(f"{path}: no Velodyne sweeps decoded (no 1206-byte data packets?)")
+            raise DataError(f"{path}: no Velodyne sweeps decoded from {self.source}")
         self._n = len(stamps)
         t = np.asarray(stamps, dtype=np.float64)
         self.times = t if (np.diff(t) > 0).all() else None
         self.files = [path] * self._n
         self._stream: Iterator | None = None
         self._pos = 0
+
+    def _packets(self) -> Iterator[tuple[float, bytes]]:
+        """(capture stamp, payload) of the data packets of the capture's sensor, in capture order:
+        the source (sender IP and destination port) of the first data packet. Data packets of
+        other sources are counted in ``_others``; position (GPS) packets and other traffic are
+        skipped."""
+        cap = Capture(self.root)
+        others: dict[str, int] = {}
+        for t, src, payload in cap:
+            if not is_data_packet(payload):
+                continue
+            if self.source is None:
+                self.source = src
+            if src != self.source:
+                others[src] = others.get(src, 0) + 1
+                continue
+            yield t, payload
+        self._others = others
+        self.truncated = cap.truncated
+
+    def _check_sources(self) -> None:
+        """Several sensors in one capture: an error naming them (their packets would interleave
+        into one sweep); a few stray packets of another source are dropped with a warning."""
+        many = {s: n for s, n in self._others.items() if n >= OTHER_SOURCE_PACKETS}
+        if many:
+            listed = ", ".join(f"{s} ({n} packets)" for s, n in sorted(many.items(), key=lambda x: -x[1])[:4])
+            ip, _, port = str(self.source).partition(" -> port ")
+            raise DataError(
+                f"{self.root}: Velodyne data packets from {len(many) + 1} sources: {self.source} and {listed}; "
+                f"split the capture per sensor, e.g. tcpdump -r IN -w OUT 'src host {ip} and udp dst port {port}'"
+            )
+        if self._others:
+            log.warning(
+                "%s: %d Velodyne data packets from other sources than %s dropped (%s)",
+                self.root,
+                sum(self._others.values()),
+                self.source,
+                ", ".join(sorted(self._others)),
+            )
+
+    def _hdl64e_calibration(self) -> None:
+        """No factory byte: an HDL-64E S2/S3 carries its model and calibration in the status
+        bytes of its data packets (velodyne_decoder's reading, on this sensor's packets only)."""
+        vd = self._vd
+        factory = [p[-2:] for _t, p in itertools.islice(self._packets(), 5)]
+        if len(factory) < 5 or all(b == factory[0] for b in factory):
+            return  # not an HDL-64E: the decoder's own default
+        try:
+            import yaml
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                metadata = vd.hdl64e.read_status_info(p for _t, p in self._packets())
+            calib = vd.hdl64e.status_info_to_calib_dict(metadata)
+        except (ValueError, KeyError, struct.error) as exc:
+            raise DataError(f"{self.root}: HDL-64E capture whose calibration cannot be read: {exc}") from exc
+        if calib["status"]["Calibration Time"] is None or [x["laser_id"] for x in calib["lasers"]] != list(range(64)):
+            raise DataError(
+                f"{self.root}: HDL-64E capture without a complete calibration in its status bytes "
+                "(give the sensor's calibration file)"
+            )
+        self.model = "HDL64E_S2" if calib["status"]["Model"] == "S2" else "HDL64E_S3"
+        self.calibration = vd.Calibration.from_string(yaml.dump(calib))
 
     def _config(self):
         vd = self._vd
@@ -186,19 +408,19 @@ class VelodynePcapSequence(SequenceBase):
         return config
 
     def _sweeps(self) -> Iterator[tuple[float, np.ndarray]]:
-        """(stamp in s, structured points) for every sweep of the capture, in order."""
+        """(stamp in s, structured points) for every sweep of the capture's sensor, in order."""
         try:
-            for stamp, points in self._vd.read_pcap(str(self.root), self._config(), as_pcl_structs=True):
-                s = getattr(stamp, "device", None)
-                s = float(stamp.host if not s else s) if hasattr(stamp, "host") else float(stamp)
-                yield s, points
-        except (ValueError, RuntimeError, OSError) as exc:
+            decoder = self._vd.StreamDecoder(self._config())
+            for t, payload in self._packets():
+                result = decoder.decode(t, payload, True)
+                if result is not None:
+                    yield _stamp(result[0]), result[1]
+            result = decoder.finish(True)
+            if result is not None:
+                yield _stamp(result[0]), result[1]
+        except (ValueError, RuntimeError) as exc:
             msg = " ".join(str(exc).split()) or type(exc).__name__
             raise DataError(f"{self.root}: cannot decode Velodyne pcap: {msg}") from exc
-        except Exception as exc:  # dpkt raises its own errors on truncated captures
-            if type(exc).__module__.startswith("dpkt"):
-                raise DataError(f"{self.root}: cannot read pcap (truncated?): {exc}") from exc
-            raise
 
     def __len__(self) -> int:
         return self._n
@@ -253,6 +475,12 @@ class VelodynePcapSequence(SequenceBase):
         full[~primary] = xyz[~primary]
         meta = {**scan.meta, "second_returns": int((~primary).sum())}
         return dataclasses.replace(scan, cloud=full, point_slot=slot, meta=meta)
+
+
+def _stamp(stamp) -> float:
+    """A sweep stamp (s): the sensor's clock when the decoder has it, else the capture's."""
+    device = getattr(stamp, "device", None)
+    return float(stamp.host if not device else device) if hasattr(stamp, "host") else float(stamp)
 
 
 def primary_returns(ring: np.ndarray, column: np.ndarray, return_type: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
