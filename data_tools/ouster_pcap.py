@@ -62,6 +62,24 @@ def load_sensor_info(path: Path, pcap: Path):
         raise DataError(f"{pcap}: cannot use sensor metadata {path}: {msg}") from exc
 
 
+def udp_traffic(path: Path, limit: int = 4) -> str:
+    """The capture's UDP traffic in a few words (the busiest destination ports, packet sizes), to
+    tell a port or profile that does not match the metadata."""
+    from data_tools.velodyne_pcap import DETECT_BYTES, DETECT_PACKETS, Capture
+
+    counts: dict[tuple[int, int], int] = {}
+    try:
+        for _t, src, payload in Capture(path, max_packets=DETECT_PACKETS, max_bytes=DETECT_BYTES):
+            key = (int(src.rpartition(" ")[2]), len(payload))
+            counts[key] = counts.get(key, 0) + 1
+    except DataError as exc:
+        return str(exc).removeprefix(f"{path}: ")
+    if not counts:
+        return "the capture holds no UDP/IPv4 packets"
+    top = sorted(counts.items(), key=lambda kv: -kv[1])[:limit]
+    return "its UDP packets: " + ", ".join(f"port {port}: {n} of {size} bytes" for (port, size), n in top)
+
+
 class OusterPcapSequence(SequenceBase):
     """The sweeps of one Ouster ``.pcap`` capture as Scans (Dataset protocol).
 
@@ -164,7 +182,8 @@ class OusterPcapSequence(SequenceBase):
             )
             raise DataError(
                 f"{self.root}: no lidar packets matching {self.meta_path.name} "
-                f"(profile {self.info.format.udp_profile_lidar}){extra}"
+                f"(profile {self.info.format.udp_profile_lidar}, {self._format.lidar_packet_size} bytes per packet, "
+                f"udp_port_lidar {self.info.config.udp_port_lidar}){extra}; {udp_traffic(self.root)}"
             )
         self.n_items = ordinal + 1
         self._starts = np.asarray(starts, dtype=np.int64)
