@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import laspy
@@ -12,11 +15,25 @@ from data_tools.laz import laz_backend
 from prc_slam import labels as L
 
 
-def write_label_file(path: str | Path, codes: np.ndarray) -> None:
-    """Write one ``.label`` file: ``uint32`` per point, our code in the lower 16 bits."""
-    path = Path(path)
+@contextlib.contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """A temporary name beside ``path``, renamed to ``path`` when the block ends without error (a
+    write cut by Ctrl-C, a full disk or a crash never leaves a short file under the final name)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    L.to_label_file(codes).tofile(path)
+    tmp = path.with_name(f".{path.name}.partial{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_label_file(path: str | Path, codes: np.ndarray) -> None:
+    """Write one ``.label`` file: ``uint32`` per point, our code in the lower 16 bits (atomically)."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        L.to_label_file(codes).tofile(tmp)
 
 
 def write_las(
@@ -62,8 +79,8 @@ def write_las(
         las.point_source_id = np.asarray(point_source_id, dtype=np.uint16)
     if gps_time is not None:
         las.gps_time = np.asarray(gps_time, dtype=np.float64)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    las.write(path, do_compress=path.suffix.lower() == ".laz", laz_backend=laz_backend(path))
+    with atomic_path(path) as tmp:
+        las.write(tmp, do_compress=path.suffix.lower() == ".laz", laz_backend=laz_backend(path))
 
 
 def write_ply(path: str | Path, xyz: np.ndarray, labels: np.ndarray | None = None) -> None:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from prc_slam.cli.common import console, handles_errors, say, wrote
+from prc_slam.cli.common import check_outputs, console, handles_errors, say, wrote
 
 
 def register(app: typer.Typer) -> None:
@@ -33,6 +33,7 @@ def batch(
     from prc_slam.jobs.distributed import open_client
     from prc_slam.jobs.progress import progress
 
+    check_outputs(out=(out, "dir"))
     spec = load_plan(plan)
     tasks = resolve_tasks(spec, plan.resolve().parent)
     say(f"{len(tasks)} inputs: " + ", ".join(f"{t.name} ({t.kind})" for t in tasks))

@@ -23,6 +23,7 @@ from prc_slam.cli.common import (
     Mode,
     OrganizeMethod,
     Preset,
+    check_outputs,
     class_table,
     console,
     handles_errors,
@@ -68,6 +69,7 @@ def classify(
     from prc_slam.jobs.common import Viewer, write_json
     from prc_slam.jobs.progress import progress
 
+    check_outputs(labels_out=(labels_out, "dir"), las=(las, "file"), json_path=(json_path, "file"), rrd=(rrd, "file"))
     cfg = prc_config(mode, preset, adaptive, config)
     opts = input_options(topic, meta, model, rows, cols, destaggered, organize)
     viewer = Viewer(rrd, connect, serve_web, log_every)
@@ -134,6 +136,7 @@ def detect(
     from prc_slam.jobs.common import Viewer, write_json
     from prc_slam.jobs.progress import progress
 
+    check_outputs(labels_out=(labels_out, "dir"), las=(las, "file"), json_path=(json_path, "file"), rrd=(rrd, "file"))
     viewer = Viewer(rrd, connect, serve_web, log_every)
     with progress() as reporter:
         metrics, written = detect_job(

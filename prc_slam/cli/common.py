@@ -70,6 +70,34 @@ def fail(message: str, code: int = 2) -> typer.Exit:
     return typer.Exit(code=code)
 
 
+def check_outputs(**outputs: tuple[Path | None, str]) -> None:
+    """Check the output paths before any work, so that a long run does not fail at its end.
+
+    ``outputs`` maps an option name (``labels_out``, shown as ``--labels-out``) to ``(path, kind)``,
+    kind ``dir`` (a directory, created later), ``file`` or ``any``. Raises the one-line error
+    naming the option when the path is a file where a directory is needed (or the reverse), when
+    an existing part of its path is a file, or when the directory that would hold it is not
+    writable."""
+    import os
+
+    for name, (path, kind) in outputs.items():
+        if path is None:
+            continue
+        flag = "--" + name.replace("_path", "").replace("_", "-")
+        path = Path(path)
+        if kind == "dir" and path.exists() and not path.is_dir():
+            raise fail(f"{flag} {path}: is a file; a directory is needed")
+        if kind == "file" and path.is_dir():
+            raise fail(f"{flag} {path}: is a directory; a file name is needed")
+        parent = path.parent if not path.exists() else path
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        if not parent.is_dir():
+            raise fail(f"{flag} {path}: {parent} is a file, not a directory")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise fail(f"{flag} {path}: {parent} is not writable")
+
+
 def _user_errors() -> tuple[type[BaseException], ...]:
     from pydantic import ValidationError
 

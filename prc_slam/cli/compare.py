@@ -29,6 +29,7 @@ from prc_slam.cli.common import (
     Mode,
     OrganizeMethod,
     Preset,
+    check_outputs,
     class_table,
     console,
     handles_errors,
@@ -130,6 +131,7 @@ def compare(
     from prc_slam.jobs.odometry import run_odometry, write_outputs
     from prc_slam.jobs.progress import progress
 
+    check_outputs(out=(out, "dir"), rrd=(rrd, "file"))
     names = variant_list(variants)
     if mapclass and stride > 1:
         raise ValueError("--stride: not with --mapclass (the map is accumulated from every frame's index)")
@@ -206,6 +208,7 @@ def odometry(
     if matching is Matching.class_aware and filter is FilterMode.none:
         raise ValueError("--matching: class-aware needs PRC labels: use it with --filter prc")
     name = "raw" if filter is FilterMode.none else "prc+classaware" if matching is Matching.class_aware else "prc"
+    check_outputs(poses_out=(poses_out, "file"), json_path=(json_path, "file"), rrd=(rrd, "file"))
     cfg = run_config(preset, config, mode)
     cfg.odometry.deskew = cfg.odometry.deskew and deskew
     with progress() as reporter:

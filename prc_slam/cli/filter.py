@@ -19,6 +19,7 @@ from prc_slam.cli.common import (
     Mode,
     OrganizeMethod,
     Preset,
+    check_outputs,
     console,
     handles_errors,
     input_options,
@@ -74,6 +75,7 @@ def filter_stream(
     from prc_slam.jobs.filter import filter_job
     from prc_slam.jobs.progress import progress
 
+    check_outputs(out=(out, "any"), json_path=(json_path, "file"))
     cfg = run_config(preset, config, mode)
     keep = None if keep_labels is None else [v.strip() for v in keep_labels.split(",") if v.strip()]
     if keep_labels is not None and not keep:

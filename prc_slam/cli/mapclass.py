@@ -25,6 +25,7 @@ from prc_slam.cli.common import (
     SERVE_OPT,
     TOPIC_OPT,
     OrganizeMethod,
+    check_outputs,
     class_table,
     console,
     handles_errors,
@@ -117,6 +118,7 @@ def mapclass(
     from prc_slam.jobs.progress import progress
     from prc_slam.mapclass import paper_config
 
+    check_outputs(out=(out, "dir"), json_path=(json_path, "file"), rrd=(rrd, "file"))
     cfg = Config.from_yaml(config) if config is not None else Config()
     if paper:
         cfg.mapclass = paper_config().model_copy(update={"normals": cfg.mapclass.normals})

@@ -3,6 +3,7 @@ against its ground truth, with label files, LAS and a Rerun recording on request
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -13,6 +14,8 @@ from prc_slam.jobs.sinks import LabelFiles, LasFile, ViewerSink
 from prc_slam.pipeline import Pipeline
 from prc_slam.prc.config import PRCConfig
 from prc_slam.scoring import OnlineScorer, PRCScorer
+
+log = logging.getLogger("prc_slam.jobs")
 
 
 @dataclass
@@ -42,7 +45,25 @@ def _written(viewer: Viewer, las: LasFile | None, outputs: Outputs) -> list[Path
     return written
 
 
-def _run(pipe: Pipeline, dataset, n: int, viewer: Viewer, reporter: Reporter | None, title: str):
+def _interrupted_note(done: int, n: int, outputs: Outputs | None) -> str:
+    """What an interrupted run leaves behind, for the warning before ``error: interrupted``."""
+    text = f"interrupted after {done} of {n} frames"
+    if outputs is not None and outputs.labels_out is not None:
+        text += f"; {outputs.labels_out} holds the label files of those {done} frames only"
+    if outputs is not None and outputs.las is not None:
+        text += f"; {outputs.las} is not written"
+    return text + "; no metrics written"
+
+
+def _run(
+    pipe: Pipeline,
+    dataset,
+    n: int,
+    viewer: Viewer,
+    reporter: Reporter | None,
+    title: str,
+    outputs: Outputs | None = None,
+):
     task = None if reporter is None else reporter.task(title, n)
     if task is not None:
         pipe.on_frame = lambda _s: task.advance()
@@ -60,6 +81,7 @@ def _run(pipe: Pipeline, dataset, n: int, viewer: Viewer, reporter: Reporter | N
     try:
         result = pipe.run(frames_of(dataset, n))
     except KeyboardInterrupt:
+        log.warning("%s", _interrupted_note(done[0], n, outputs))
         viewer.close(interrupted_at=done[0])
         raise
     return result
@@ -85,7 +107,7 @@ def classify_job(
     warm_up()
     scorer = PRCScorer()
     sinks, las = _file_sinks(outputs, "prc")
-    result = _run(Pipeline(prc=config, sinks=[scorer, *sinks]), dataset, n, viewer, reporter, "PRC")
+    result = _run(Pipeline(prc=config, sinks=[scorer, *sinks]), dataset, n, viewer, reporter, "PRC", outputs)
     metrics = scorer.metrics(result)
     metrics["input"] = str(input)
     metrics["config"] = config.model_dump(mode="json")
@@ -113,7 +135,7 @@ def detect_job(
     sinks, las = _file_sinks(outputs, "online")
     detector = OnlineDetector.paper() if paper else OnlineDetector()
     pipe = Pipeline(online=detector, sinks=[scorer, *sinks])
-    result = _run(pipe, dataset, n, viewer, reporter, "online detectors")
+    result = _run(pipe, dataset, n, viewer, reporter, "online detectors", outputs)
     metrics = scorer.metrics(result)
     metrics["input"] = str(input)
     return metrics, _written(viewer, las, outputs)
