@@ -25,11 +25,13 @@ spacing), and the unit among s, ms, us, ns that makes the span closest to the pe
 taken; with a single message the datatype decides (floating point: s, integer: ns). Values
 above 1e6 s are absolute (epoch) times; others are relative to the header stamp (Ouster
 ``t`` counts ns from the stamp, the Velodyne driver's ``time`` may be negative when the stamp
-is the end of the sweep). The header stamp is the frame time.
+is the end of the sweep). The header stamp is the frame time; when every header stamp of the
+topic is the same (unset by the driver), the recording's log times are, with a warning.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -627,6 +629,20 @@ class RosbagSequence:
             raise DataError(f"{self.path}: topic {self.topic} holds no messages")
         self.log_times = np.asarray(log_times, dtype=np.int64)
         self.times = np.asarray(stamps, dtype=np.float64)
+        self.stamps_from_log = False  # header stamps unset: frame times are the log times
+        if len(self.times) > 1 and (self.times == self.times[0]).all() and (np.diff(self.log_times) > 0).all():
+            log.warning(
+                "%s: all %d header stamps of %s are %.6f s (unset by the driver?); the frames are timed by the "
+                "recording's log times instead (%.6f s to %.6f s)",
+                self.path,
+                len(self.times),
+                self.topic,
+                self.times[0],
+                self.log_times[0] * 1e-9,
+                self.log_times[-1] * 1e-9,
+            )
+            self.stamps_from_log = True
+            self.times = self.log_times * 1e-9
         stuck = np.flatnonzero(np.diff(self.times) <= 0) + 1
         if len(stuck):  # odometry needs increasing frame times: say so before it stops there
             k = int(stuck[0])
@@ -692,9 +708,14 @@ class RosbagSequence:
             from data_tools.units import warn_unless_metres
 
             warn_unless_metres(cloud_xyz(cloud), f"{self.path} ({self.topic}, frame {cloud.frame_id!r})", "clouds")
+        timed = cloud
+        if self.stamps_from_log:  # organised at the log time; the message itself is kept as recorded
+            sec, nsec = divmod(int(self.log_times[i]), 10**9)
+            timed = dataclasses.replace(cloud, stamp_sec=sec, stamp_nanosec=nsec)
         scan = cloud_to_scan(
-            cloud, self.organizer, name=f"{i:06d}", source=self._source(i), time_field=tf, row_lines=self._row_lines
+            timed, self.organizer, name=f"{i:06d}", source=self._source(i), time_field=tf, row_lines=self._row_lines
         )
+        scan.meta["ros"] = cloud
         scan.meta["log_time_ns"] = int(self.log_times[i])
         scan.meta["topic"] = self.topic
         scan.meta["frame_index"] = i

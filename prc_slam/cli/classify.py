@@ -95,8 +95,8 @@ def summary(metrics: dict, title: str) -> None:
     skipped = metrics.get("skipped_frames", 0) + metrics.get("skipped_points", 0) + metrics.get("empty_frames", 0)
     if skipped:
         console.print(
-            f"skipped: {metrics['skipped_frames']} frames, {metrics['skipped_points']} non-finite points; "
-            f"{metrics['empty_frames']} empty frames",
+            f"skipped: {metrics['skipped_frames']} frames, {metrics['skipped_points']} points without a return "
+            f"(NaN/inf, at the origin or beyond 100 km: label 0); {metrics['empty_frames']} empty frames",
             highlight=False,
         )
     if "per_class" in metrics:
