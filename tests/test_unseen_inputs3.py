@@ -297,6 +297,21 @@ def test_an_output_path_that_cannot_be_written_is_refused_before_any_work(small_
     assert not (tmp_path / "lab").exists()  # refused before the first frame
 
 
+def test_existing_output_files_and_folders_are_replaced(small_kitti, tmp_path):
+    from typer.testing import CliRunner
+
+    from prc_slam.cli import app
+
+    args = ["classify", str(small_kitti), "--labels-out", str(tmp_path / "lab"), "--json", str(tmp_path / "m.json")]
+    args += ["--las", str(tmp_path / "c.las")]
+    for _ in range(2):
+        res = CliRunner().invoke(app, args)
+        assert res.exit_code == 0, res.output
+    assert len(list((tmp_path / "lab").iterdir())) == 3 and (tmp_path / "m.json").is_file()
+    res = CliRunner().invoke(app, ["compare", str(small_kitti), "--out", str(tmp_path / "lab"), "--variants", "raw"])
+    assert res.exit_code == 0, res.output
+
+
 def test_an_interrupted_classify_says_what_it_left(small_kitti, tmp_path, monkeypatch):
     from typer.testing import CliRunner
 

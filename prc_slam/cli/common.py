@@ -89,7 +89,7 @@ def check_outputs(**outputs: tuple[Path | None, str]) -> None:
             raise fail(f"{flag} {path}: is a file; a directory is needed")
         if kind == "file" and path.is_dir():
             raise fail(f"{flag} {path}: is a directory; a file name is needed")
-        parent = path.parent if not path.exists() else path
+        parent = path if kind == "dir" and path.is_dir() else path.parent  # an existing file is replaced
         while not parent.exists() and parent != parent.parent:
             parent = parent.parent
         if not parent.is_dir():
