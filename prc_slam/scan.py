@@ -98,6 +98,10 @@ class SpinningSensor(SensorModel):
         +1 when the azimuth grows with the column index, -1 when it falls.
     sweep_period : float
         Duration of one sweep (s).
+    mount : ndarray (3, 3), optional
+        Rotation from the spin frame (z along the spin axis; altitudes and azimuths are
+        measured there) into the frame of the points, when the points are given in a frame
+        tilted from the spin axis (a vehicle frame); None: the same frame.
     """
 
     altitude: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -107,6 +111,7 @@ class SpinningSensor(SensorModel):
     direction: int = 1
     sweep_period: float = 0.1
     continuous_rows: bool = False
+    mount: np.ndarray | None = None
 
     @classmethod
     def create(
@@ -119,6 +124,7 @@ class SpinningSensor(SensorModel):
         azimuth0: float = 0.0,
         direction: int = 1,
         sweep_period: float = 0.1,
+        mount: np.ndarray | None = None,
     ) -> SpinningSensor:
         """Build a model from per-beam elevation angles (rad) and a column count."""
         altitude = np.asarray(altitude, dtype=np.float64)
@@ -134,6 +140,7 @@ class SpinningSensor(SensorModel):
             azimuth0=float(azimuth0),
             direction=int(direction),
             sweep_period=float(sweep_period),
+            mount=None if mount is None else np.asarray(mount, dtype=np.float64).reshape(3, 3),
         )
 
     def azimuth(self) -> np.ndarray:
@@ -156,6 +163,8 @@ class SpinningSensor(SensorModel):
         out[..., 0] = cos_row * cos_col - sin_row * sin_col  # cos(el) cos(col + row)
         out[..., 1] = sin_row * cos_col + cos_row * sin_col  # cos(el) sin(col + row)
         out[..., 2] = np.sin(self.altitude)[:, None]
+        if self.mount is not None:
+            out = (out.astype(np.float64) @ self.mount.T).astype(np.float32)
         return out
 
     def directions(self) -> np.ndarray:
@@ -165,7 +174,7 @@ class SpinningSensor(SensorModel):
         np.multiply(cos_el, np.cos(az), out=out[..., 0])
         np.multiply(cos_el, np.sin(az), out=out[..., 1])
         out[..., 2] = np.sin(self.altitude)[:, None]
-        return out
+        return out if self.mount is None else out @ self.mount.T
 
     def row_step(self) -> np.ndarray:
         """Angle (rad) between each beam and its nearest neighbouring beam, ``float64[rows]``."""
@@ -194,6 +203,7 @@ class SpinningSensor(SensorModel):
             "azimuth0": self.azimuth0,
             "direction": self.direction,
             "sweep_period": self.sweep_period,
+            **({} if self.mount is None else {"mount": np.round(self.mount, 9).tolist()}),
         }
 
 
@@ -293,6 +303,7 @@ def sensor_from_description(desc: dict[str, Any]) -> SensorModel:
             azimuth0=desc["azimuth0"],
             direction=desc["direction"],
             sweep_period=desc["sweep_period"],
+            mount=desc.get("mount"),
         )
     if kind == "profiler":
         return ProfilerSensor.create(
