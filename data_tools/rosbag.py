@@ -591,7 +591,8 @@ class RosbagSequence:
         if not clouds:
             others = {n: i.msgtype for n, i in self._reader.topics.items()}
             listed = ", ".join(f"{n} ({t})" for n, t in sorted(others.items())[:8]) or "none"
-            raise DataError(f"{self.path}: no sensor_msgs/PointCloud2 topic (topics: {listed})")
+            hints = "".join(f"; {n} holds {_hint(t)}" for n, t in sorted(others.items())[:8] if _hint(t))
+            raise DataError(f"{self.path}: no sensor_msgs/PointCloud2 topic (topics: {listed}){hints}")
         if len(clouds) > 1:
             raise DataError(
                 f"{self.path}: {len(clouds)} PointCloud2 topics, choose one with --topic: {', '.join(sorted(clouds))}"
@@ -810,6 +811,28 @@ def _raw_stamp(raw: bytes | memoryview, ros1: bool) -> float | None:
         order = "little" if b[1] & 1 else "big"
         sec, nsec = int.from_bytes(b[4:8], order, signed=True), int.from_bytes(b[8:12], order)
     return sec + nsec * 1e-9
+
+
+#: Message types that hold a lidar's data in another form than PointCloud2 -> what to do with them.
+OTHER_LIDAR_TYPES = {
+    "velodyne_msgs/msg/VelodyneScan": "raw Velodyne packets: convert them to PointCloud2 with the velodyne driver "
+    "(velodyne_pointcloud) or record the sensor to a .pcap, which is read directly",
+    "ouster_sensor_msgs/msg/PacketMsg": "raw Ouster packets: convert them with ouster-ros or read a .pcap with "
+    "its metadata json",
+    "ouster_ros/msg/PacketMsg": "raw Ouster packets: convert them with ouster-ros or read a .pcap with its "
+    "metadata json",
+    "pandar_msgs/msg/PandarScan": "raw Hesai packets: convert them to PointCloud2 with the Hesai driver",
+    "livox_ros_driver/msg/CustomMsg": "Livox CustomMsg points: record PointCloud2 instead (livox driver xfer_format 0)",
+    "livox_ros_driver2/msg/CustomMsg": "Livox CustomMsg points: record PointCloud2 instead (livox driver "
+    "xfer_format 0)",
+    "sensor_msgs/msg/PointCloud": "the old sensor_msgs/PointCloud: convert it to PointCloud2 (point_cloud_converter)",
+    "sensor_msgs/msg/LaserScan": "2-D laser scans, not a 3-D lidar",
+}
+
+
+def _hint(msgtype: str) -> str | None:
+    """What a topic of ``msgtype`` holds and how to read it, when it is a lidar's data in another form."""
+    return OTHER_LIDAR_TYPES.get(msgtype.replace("/msg/", "/").replace("/", "/msg/", 1))
 
 
 def _is_pointcloud2(msgtype: str | None) -> bool:

@@ -460,3 +460,33 @@ def test_the_summary_counts_points_at_the_origin_as_points_without_a_return(tmp_
     assert res.exit_code == 0, res.output
     zeros = int((grid == 0).all(axis=-1).sum())
     assert f"{zeros} points without a return" in res.output and "non-finite" not in res.output
+
+
+def test_a_recording_of_raw_velodyne_packets_says_what_it_holds(tmp_path):
+    """A bag recorded from ``/velodyne_packets`` (velodyne_msgs/VelodyneScan, common in public
+    datasets): the error said only 'no PointCloud2 topic'; it now says what the topic holds and how
+    to read it."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    types = get_types_from_msg("time stamp\nuint8[1206] data\n", "velodyne_msgs/msg/VelodynePacket")
+    types.update(
+        get_types_from_msg("std_msgs/Header header\nVelodynePacket[] packets\n", "velodyne_msgs/msg/VelodyneScan")
+    )
+    ts.register(types)
+    T = ts.types
+    stamp = T["builtin_interfaces/msg/Time"](sec=1, nanosec=0)
+    packet = T["velodyne_msgs/msg/VelodynePacket"](stamp=stamp, data=np.zeros(1206, np.uint8))
+    msg = T["velodyne_msgs/msg/VelodyneScan"](
+        header=T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="velodyne"), packets=[packet]
+    )
+    path = tmp_path / "packets.bag"
+    with Writer(path) as w:
+        conn = w.add_connection("/velodyne_packets", "velodyne_msgs/msg/VelodyneScan", typestore=ts)
+        w.write(conn, 10**9, ts.serialize_ros1(msg, "velodyne_msgs/msg/VelodyneScan"))
+    with pytest.raises(DataError) as exc:
+        open_dataset(path)
+    msg = str(exc.value)
+    assert "\n" not in msg and "no sensor_msgs/PointCloud2 topic" in msg
+    assert "/velodyne_packets holds raw Velodyne packets" in msg and ".pcap" in msg
