@@ -24,8 +24,8 @@ import numpy as np
 from prc_slam import labels as L
 from prc_slam.prc import PRCStream, prc_block
 from prc_slam.prc.config import PRCConfig
-from prc_slam.prc.ground import GroundState
-from prc_slam.scan import Scan, ScanError
+from prc_slam.prc.ground import GroundState, upside_down
+from prc_slam.scan import Scan, ScanError, SpinningSensor
 
 log = logging.getLogger("prc_slam.pipeline")
 
@@ -496,6 +496,10 @@ class Pipeline:
                 elif frame.ground_error is not None:
                     result.frames_without_ground += 1
                     self.warn(f"{scan.source}: PRC found no ground model: {frame.ground_error}")
+                if index == 0 and frame.labels is not None and isinstance(scan.sensor, SpinningSensor) and n:
+                    turned = upside_down(scan.sensor.to_xyz(scan.ranges), scan.ranges > 0, scan.sensor.altitude)
+                    if turned is not None:
+                        self.warn(f"{scan.source}: {turned}")
                 if frame.labels is not None and (one := one_class(frame.labels, scan.ranges)) is not None:
                     result.frames_one_class += 1
                     if result.frames_one_class == 1:  # once per run; the count is in the summary

@@ -264,3 +264,43 @@ def test_thread_use_pauses_after_a_step_that_waited_for_a_core():
     tu.watched(time.sleep)(0.02)
     assert tu.waited == 1 and tu.pause == 6  # the next pause doubles
     assert [tu.use(THREADED_SLOTS) for _ in range(4)] == [False, False, False, True]
+
+
+def test_a_sweep_turned_over_is_told():
+    """z down (a NED frame, a sensor hung upside down): the ground the column ground would take
+    lies above the sensor; the simulated hdl64 sweep is told apart from itself turned over, and
+    a level plane below the sensor alone (hand-made) is upright."""
+    sim_mod = pytest.importorskip("data_tools.sim.simulator")
+    sim = sim_mod.Simulator(sim_mod.SimConfig(scene="urban", sensor="hdl64", frames=2))
+    f = sim.frame(0)
+    sensor = sim.sensor.model
+    xyz, valid = sensor.to_xyz(f.ranges), f.ranges > 0
+    assert G.upside_down(xyz, valid, sensor.altitude) is None
+    why = G.upside_down(xyz * np.float32([1, -1, -1]), valid, -sensor.altitude)
+    assert why is not None and "upside down" in why
+    r, plane_sensor, _ = _plane_sweep(0.0)
+    assert G.upside_down(plane_sensor.to_xyz(r), r > 0, plane_sensor.altitude) is None
+    # a plane above only (a ceiling, no ground): turned over, it is ground below
+    assert G.upside_down(-plane_sensor.to_xyz(r), r > 0, plane_sensor.altitude) is not None
+
+
+def test_pipeline_warns_once_about_a_sweep_turned_over():
+    from prc_slam.pipeline import Pipeline
+    from prc_slam.scan import Scan
+
+    sim_mod = pytest.importorskip("data_tools.sim.simulator")
+    sim = sim_mod.Simulator(sim_mod.SimConfig(scene="urban", sensor="hdl64", frames=2))
+    sensor = sim.sensor.model
+    # the sweep turned over (y and z negated): rows top first again, azimuths mirrored
+    flipped = SpinningSensor.create(
+        -sensor.altitude[::-1], sensor.cols, azimuth0=-sensor.azimuth0, direction=-sensor.direction
+    )
+    np.testing.assert_allclose(flipped.directions()[::-1], sensor.directions() * [1, -1, -1], atol=1e-9)
+    warned: list[str] = []
+    scans = [Scan(ranges=sim.frame(i).ranges[::-1].copy(), sensor=flipped, source=f"f{i}") for i in range(2)]
+    Pipeline(prc=PRCConfig.preset("multibeam"), warn=warned.append).run(iter(scans))
+    assert sum("upside down" in w for w in warned) == 1, warned
+    upright = [Scan(ranges=sim.frame(i).ranges, sensor=sensor, source=f"f{i}") for i in range(2)]
+    warned.clear()
+    Pipeline(prc=PRCConfig.preset("multibeam"), warn=warned.append).run(iter(upright))
+    assert not any("upside down" in w for w in warned), warned

@@ -586,6 +586,39 @@ def column_ground(
     )  # fmt: skip
 
 
+#: :func:`upside_down` says so when a level surface above the sensor holds this many times the
+#: returns of the ground below (KITTI 00 turned over: 3.9-4.0; the shared real sweeps, upright,
+#: indoors too: at most 2.0)
+UPSIDE_DOWN_RATIO = 3.0
+
+
+def upside_down(xyz: np.ndarray, valid: np.ndarray, altitude: np.ndarray | None = None) -> str | None:
+    """Why a sweep looks turned over (z down: a NED frame, a sensor hung upside down), or None.
+
+    :func:`ground_plane` (the column ground's step 0, which takes the ground below the sensor)
+    is run on the sweep and on its mirror (y and z negated: the sweep turned over); when the
+    turned-over sweep's ground holds :data:`UPSIDE_DOWN_RATIO` times the returns (and at least
+    1,000), the points most likely have z down, and PRC's ground (like the online detectors)
+    would be wrong without a word. ``xyz``: slot coordinates ``(rows, cols, 3)``."""
+    xyz = np.asarray(xyz, dtype=np.float32)
+    alt = None if altitude is None else np.asarray(altitude, dtype=np.float64)
+
+    def support(pts: np.ndarray, a: np.ndarray | None) -> int:
+        try:
+            return ground_plane(pts, valid, beam_order(pts, valid, a))[1]
+        except GroundModelError:
+            return 0
+
+    below = support(xyz, alt)
+    above = support(xyz * np.float32([1.0, -1.0, -1.0]), None if alt is None else -alt)
+    if above < 1000 or above < UPSIDE_DOWN_RATIO * below:
+        return None
+    return (
+        f"the points look upside down: a level surface above the sensor holds {above} returns, the ground "
+        f"below {below}; PRC's ground and the online detectors take z up (turn the points over: y and z negated)"
+    )
+
+
 def ground_frame(
     xyz: np.ndarray,
     valid: np.ndarray,
