@@ -144,11 +144,11 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
             method=str(options.get("organize_method") or "auto"),
         )
     if fmt == "rosbag":
-        from data_tools.rosbag import RosbagSequence
+        from data_tools.rosbag import open_recording
 
         topic = options.get("topic")
         organizer = None
         if any(k in given for k in _ORGANISER_OPTIONS):
             organizer = _organiser(Path(path), options)
-        return RosbagSequence(path, topic=None if topic is None else str(topic), organizer=organizer)
+        return open_recording(path, topic=None if topic is None else str(topic), organizer=organizer)
     raise DataError(f"{path}: unsupported format {fmt!r}; choose from {FORMATS}")

@@ -468,6 +468,49 @@ def bag_kind(path: str | Path) -> str | None:
     return {".bag": "ros1", ".db3": "ros2", ".mcap": "mcap"}.get(path.suffix.lower())
 
 
+def reader_paths(path: Path) -> list[Path]:
+    """The paths to hand to ``AnyReader`` for a recording ``path`` (see :class:`RosbagSequence`)."""
+    path = Path(path)
+    kind = bag_kind(path)
+    if kind is None:
+        raise DataError(f"{path}: not a ROS 1 .bag, ROS 2 .db3 / rosbag2 folder or .mcap recording")
+    return _reader_paths(path, kind)
+
+
+VELODYNE_SCAN = ("velodyne_msgs/msg/VelodyneScan", "velodyne_msgs/VelodyneScan")
+
+
+def open_recording(path: str | Path, topic: str | None = None, *, organizer: Any = None) -> Any:
+    """A recording as a dataset: its ``PointCloud2`` topic (:class:`RosbagSequence`), or, when it
+    holds no PointCloud2 but raw Velodyne packets (``velodyne_msgs/VelodyneScan``), their sweeps
+    decoded (:class:`data_tools.velodyne_pcap.VelodyneScanSequence`)."""
+    try:
+        return RosbagSequence(path, topic, organizer=organizer)
+    except DataError:
+        scans = _velodyne_scan_topics(Path(path))
+        if not scans or (topic is not None and topic not in scans):
+            raise
+        if topic is None and len(scans) > 1:
+            raise DataError(
+                f"{path}: {len(scans)} VelodyneScan topics, choose one with --topic: {', '.join(sorted(scans))}"
+            ) from None
+        from data_tools.velodyne_pcap import VelodyneScanSequence
+
+        if organizer is not None:
+            log.warning("%s: --rows/--cols/--organize do not apply to raw Velodyne packets; ignored", path)
+        return VelodyneScanSequence(path, topic or scans[0])
+
+
+def _velodyne_scan_topics(path: Path) -> list[str]:
+    from rosbags.highlevel import AnyReader
+
+    try:
+        with AnyReader(reader_paths(path)) as reader:
+            return sorted(n for n, info in reader.topics.items() if info.msgtype in VELODYNE_SCAN)
+    except Exception:  # the PointCloud2 reader's error stands
+        return []
+
+
 def _reader_paths(path: Path, kind: str) -> list[Path]:
     """Paths to hand to ``AnyReader``."""
     if path.name == "metadata.yaml":
@@ -815,8 +858,8 @@ def _raw_stamp(raw: bytes | memoryview, ros1: bool) -> float | None:
 
 #: Message types that hold a lidar's data in another form than PointCloud2 -> what to do with them.
 OTHER_LIDAR_TYPES = {
-    "velodyne_msgs/msg/VelodyneScan": "raw Velodyne packets: convert them to PointCloud2 with the velodyne driver "
-    "(velodyne_pointcloud) or record the sensor to a .pcap, which is read directly",
+    "velodyne_msgs/msg/VelodyneScan": "raw Velodyne packets: data_tools.open_dataset and the command line "
+    "decode them (data_tools.velodyne_pcap.VelodyneScanSequence)",
     "ouster_sensor_msgs/msg/PacketMsg": "raw Ouster packets: convert them with ouster-ros or read a .pcap with "
     "its metadata json",
     "ouster_ros/msg/PacketMsg": "raw Ouster packets: convert them with ouster-ros or read a .pcap with its "

@@ -287,7 +287,7 @@ class VelodynePcapSequence(SequenceBase):
 
     def __init__(self, path: str | Path, *, model: str | None = None, calibration: str | Path | None = None) -> None:
         path = Path(path)
-        if not path.is_file():
+        if not path.exists():
             raise DataError(f"{path}: no such file")
         try:
             import velodyne_decoder as vd
@@ -475,6 +475,48 @@ class VelodynePcapSequence(SequenceBase):
         full[~primary] = xyz[~primary]
         meta = {**scan.meta, "second_returns": int((~primary).sum())}
         return dataclasses.replace(scan, cloud=full, point_slot=slot, meta=meta)
+
+
+class VelodyneScanSequence(VelodynePcapSequence):
+    """The sweeps of a recording of raw Velodyne packets (``velodyne_msgs/VelodyneScan``, as
+    ``rosbag record /velodyne_packets`` stores them): the packets of every message go through the
+    decoder exactly as a capture's would (:class:`VelodynePcapSequence`), stamped with the packet
+    stamps; ROS 1 ``.bag``, ROS 2 and MCAP recordings.
+
+    Parameters
+    ----------
+    path : the recording (see :class:`data_tools.rosbag.RosbagSequence`)
+    topic : the VelodyneScan topic (needed when there are several)
+    """
+
+    format = "velodyne-pcap"
+
+    def __init__(self, path: str | Path, topic: str, *, model: str | None = None) -> None:
+        self.topic = topic
+        super().__init__(path, model=model)
+
+    def _packets(self) -> Iterator[tuple[float, bytes]]:
+        from rosbags.highlevel import AnyReader
+
+        from data_tools.rosbag import reader_paths
+
+        self.source = self.topic
+        try:
+            with AnyReader(reader_paths(self.root)) as reader:
+                conns = [c for c in reader.connections if c.topic == self.topic]
+                for conn, _t, raw in reader.messages(connections=conns):
+                    msg = reader.deserialize(raw, conn.msgtype)
+                    for packet in msg.packets:
+                        data = np.asarray(packet.data, dtype=np.uint8).tobytes()
+                        if is_data_packet(data):
+                            yield int(packet.stamp.sec) + int(packet.stamp.nanosec) * 1e-9, data
+        except DataError:
+            raise
+        except Exception as exc:  # rosbags raises many types for damaged recordings
+            msg = " ".join(str(exc).split())[:300] or type(exc).__name__
+            raise DataError(f"{self.root}: cannot read the packets of {self.topic}: {msg}") from exc
+        self._others = {}
+        self.truncated = False
 
 
 def _stamp(stamp) -> float:

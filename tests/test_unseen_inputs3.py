@@ -462,31 +462,68 @@ def test_the_summary_counts_points_at_the_origin_as_points_without_a_return(tmp_
     assert f"{zeros} points without a return" in res.output and "non-finite" not in res.output
 
 
-def test_a_recording_of_raw_velodyne_packets_says_what_it_holds(tmp_path):
-    """A bag recorded from ``/velodyne_packets`` (velodyne_msgs/VelodyneScan, common in public
-    datasets): the error said only 'no PointCloud2 topic'; it now says what the topic holds and how
-    to read it."""
-    from rosbags.rosbag1 import Writer
+def velodyne_scan_bag(path: Path, kind: str, payloads: list[bytes], stamps: list[float], topic: str) -> Path:
+    """A recording of raw packets as ``rosbag record /velodyne_packets`` stores them: one
+    ``velodyne_msgs/VelodyneScan`` per 75 packets, each packet with its stamp."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    ts = get_typestore(Stores.ROS1_NOETIC)
-    types = get_types_from_msg("time stamp\nuint8[1206] data\n", "velodyne_msgs/msg/VelodynePacket")
-    types.update(
-        get_types_from_msg("std_msgs/Header header\nVelodynePacket[] packets\n", "velodyne_msgs/msg/VelodyneScan")
-    )
+    ts = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
+    types = get_types_from_msg("builtin_interfaces/Time stamp\nuint8[1206] data\n", "velodyne_msgs/msg/VelodynePacket")
+    header = "std_msgs/Header header\nVelodynePacket[] packets\n"
+    types.update(get_types_from_msg(header, "velodyne_msgs/msg/VelodyneScan"))
     ts.register(types)
     T = ts.types
-    stamp = T["builtin_interfaces/msg/Time"](sec=1, nanosec=0)
-    packet = T["velodyne_msgs/msg/VelodynePacket"](stamp=stamp, data=np.zeros(1206, np.uint8))
-    msg = T["velodyne_msgs/msg/VelodyneScan"](
-        header=T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="velodyne"), packets=[packet]
-    )
-    path = tmp_path / "packets.bag"
-    with Writer(path) as w:
-        conn = w.add_connection("/velodyne_packets", "velodyne_msgs/msg/VelodyneScan", typestore=ts)
-        w.write(conn, 10**9, ts.serialize_ros1(msg, "velodyne_msgs/msg/VelodyneScan"))
-    with pytest.raises(DataError) as exc:
-        open_dataset(path)
-    msg = str(exc.value)
-    assert "\n" not in msg and "no sensor_msgs/PointCloud2 topic" in msg
-    assert "/velodyne_packets holds raw Velodyne packets" in msg and ".pcap" in msg
+
+    def stamp(t: float):
+        sec = int(t)
+        return T["builtin_interfaces/msg/Time"](sec=sec, nanosec=round((t - sec) * 1e9))
+
+    if kind == "ros1":
+        from rosbags.rosbag1 import Writer
+
+        writer, serialize = Writer(path), ts.serialize_ros1
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        writer, serialize = Writer(path, version=9, storage_plugin=StoragePlugin.SQLITE3), ts.serialize_cdr
+    with writer as w:
+        conn = w.add_connection(topic, "velodyne_msgs/msg/VelodyneScan", typestore=ts)
+        for k in range(0, len(payloads), 75):
+            packets = [
+                T["velodyne_msgs/msg/VelodynePacket"](stamp=stamp(t), data=np.frombuffer(p, np.uint8))
+                for p, t in zip(payloads[k : k + 75], stamps[k : k + 75], strict=True)
+            ]
+            extra = {"seq": k} if kind == "ros1" else {}
+            hdr = T["std_msgs/msg/Header"](stamp=stamp(stamps[k]), frame_id="velodyne", **extra)
+            msg = T["velodyne_msgs/msg/VelodyneScan"](header=hdr, packets=packets)
+            w.write(conn, round(stamps[k] * 1e9), serialize(msg, "velodyne_msgs/msg/VelodyneScan"))
+    return path
+
+
+@pytest.mark.parametrize("kind", ["ros1", "ros2"])
+def test_a_recording_of_raw_velodyne_packets_is_decoded_like_the_capture(kind, vlp16_frames, reference, tmp_path):
+    """A bag recorded from ``/velodyne_packets`` (velodyne_msgs/VelodyneScan, common in public
+    datasets) was refused ('no PointCloud2 topic'): its packets are decoded as a capture's."""
+    payloads, stamps, _ = vlp16_stream(n_sweeps=2.3)
+    name = "packets.bag" if kind == "ros1" else "packets"
+    path = velodyne_scan_bag(tmp_path / name, kind, payloads, stamps, "/velodyne_packets")
+    ds = open_dataset(path)
+    assert ds.model == "VLP16" and ds.topic == "/velodyne_packets"
+    same_sweeps(ds, reference)
+    scan = ds[0]
+    assert scan.meta["organize"]["rings"] == 16 and scan.n_points == len(reference[1][0])
+
+
+def test_two_velodyne_packet_topics_need_a_topic(tmp_path):
+    pytest.importorskip("velodyne_decoder", reason="velodyne-decoder is not installed")
+    payloads, stamps, _ = vlp16_stream(n_sweeps=0.3)
+    path = velodyne_scan_bag(tmp_path / "a.bag", "ros1", payloads, stamps, "/front/velodyne_packets")
+    both = tmp_path / "both"  # a folder of split bags, one topic each
+    both.mkdir()
+    velodyne_scan_bag(both / "1.bag", "ros1", payloads, stamps, "/front/velodyne_packets")
+    velodyne_scan_bag(both / "2.bag", "ros1", payloads, stamps, "/rear/velodyne_packets")
+    with pytest.raises(DataError, match="2 VelodyneScan topics, choose one with --topic") as exc:
+        open_dataset(both)
+    assert "/front/velodyne_packets" in str(exc.value) and "/rear/velodyne_packets" in str(exc.value)
+    assert len(open_dataset(both, topic="/rear/velodyne_packets")) >= 1
+    assert open_dataset(path).topic == "/front/velodyne_packets"
