@@ -77,7 +77,8 @@ PCAPNG_SHB = 0x0A0D0D0A
 
 class Capture:
     """The UDP/IPv4 packets of a packet capture: classic libpcap (micro- or nanosecond stamps,
-    either byte order) or pcapng, with Ethernet (VLAN tags too), Linux cooked or raw IP links.
+    either byte order) or pcapng, with Ethernet (VLAN tags too), Linux cooked (v1, v2) or raw IPv4
+    links.
 
     Iterating yields ``(stamp_s, source, payload)`` per UDP packet, ``source`` being
     ``"src-ip -> port dst-port"``. A file that ends inside a record stops the iteration and sets
@@ -216,6 +217,8 @@ def _udp(frame: bytes, link: int) -> tuple[str, bytes] | None:
             ethertype, off = frame[off + 2 : off + 4], off + 4
     elif link == 113:  # Linux cooked capture
         off, ethertype = 16, frame[14:16]
+    elif link == 276:  # Linux cooked capture v2 (tcpdump -i any)
+        off, ethertype = 20, frame[0:2]
     elif link in (101, 12, 228):  # raw IPv4
         off, ethertype = 0, b"\x08\x00"
     else:

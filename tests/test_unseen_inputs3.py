@@ -37,11 +37,13 @@ def eth_udp(payload: bytes, port: int, src: tuple[int, int, int, int] = (192, 16
     return b"\xff" * 6 + b"\x60\x76\x88\x00\x00\x01" + b"\x08\x00" + ip
 
 
-def write_pcap(path: Path, frames: list[tuple[float, bytes]], *, nano: bool = False, big: bool = False) -> Path:
-    """Classic libpcap (Ethernet link), micro- or nanosecond stamps, either byte order."""
+def write_pcap(
+    path: Path, frames: list[tuple[float, bytes]], *, nano: bool = False, big: bool = False, link: int = 1
+) -> Path:
+    """Classic libpcap, micro- or nanosecond stamps, either byte order (``link``: the frames' link type)."""
     e = ">" if big else "<"
     with path.open("wb") as f:
-        f.write(struct.pack(e + "IHHiIII", 0xA1B23C4D if nano else 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1))
+        f.write(struct.pack(e + "IHHiIII", 0xA1B23C4D if nano else 0xA1B2C3D4, 2, 4, 0, 0, 65535, link))
         for s, eth in frames:
             frac = round(s % 1 * (1e9 if nano else 1e6))
             f.write(struct.pack(e + "IIII", int(s), frac, len(eth), len(eth)) + eth)
@@ -111,6 +113,26 @@ def test_capture_file_formats_decode_the_same_sweeps(case, vlp16_frames, referen
     else:
         path = write_pcap(tmp_path / "v.pcap", vlp16_frames, nano=case == "nano", big=case == "bigendian")
     assert detect_format(path) == "velodyne-pcap"
+    same_sweeps(open_dataset(path), reference)
+
+
+LINK_HEADERS = {  # link type -> header put before the IPv4 packet of an Ethernet frame
+    "ethernet_vlan": (1, b"\xff" * 6 + b"\x60\x76\x88\x00\x00\x01" + b"\x81\x00\x00\x05" + b"\x08\x00"),
+    "linux_sll": (113, b"\x00\x00\x00\x01\x00\x06" + b"\x60\x76\x88\x00\x00\x01\x00\x00" + b"\x08\x00"),
+    "linux_sll2": (
+        276,
+        b"\x08\x00\x00\x00" + b"\x00\x00\x00\x02" + b"\x00\x01\x00\x06" + b"\x60\x76\x88\x00\x00\x01\x00\x00",
+    ),
+    "raw_ip": (101, b""),
+}
+
+
+@pytest.mark.parametrize("link", sorted(LINK_HEADERS))
+def test_captures_of_other_link_types_decode_the_same_sweeps(link, vlp16_frames, reference, tmp_path):
+    """``tcpdump -i any`` writes Linux cooked frames (v2 on current libpcap); VLAN-tagged Ethernet,
+    raw IP: the same sweeps (every frame was parsed as Ethernet before)."""
+    code, header = LINK_HEADERS[link]
+    path = write_pcap(tmp_path / "v.pcap", [(s, header + eth[14:]) for s, eth in vlp16_frames], link=code)
     same_sweeps(open_dataset(path), reference)
 
 
