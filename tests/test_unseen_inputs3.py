@@ -319,6 +319,20 @@ def test_an_output_path_that_cannot_be_written_is_refused_before_any_work(small_
     assert not (tmp_path / "lab").exists()  # refused before the first frame
 
 
+@pytest.mark.parametrize("where", ["{tmp}", "{file}/run.log"])
+def test_a_log_file_that_cannot_be_written_is_one_line(small_kitti, tmp_path, where):
+    """``--log-file`` on a directory, or under a file: a traceback before."""
+    from typer.testing import CliRunner
+
+    from prc_slam.cli import app
+
+    afile = tmp_path / "a file"
+    afile.write_text("x")
+    log_file = where.format(tmp=tmp_path, file=afile)
+    res = CliRunner().invoke(app, ["--log-file", log_file, "classify", str(small_kitti)])
+    assert f"--log-file {log_file}" in one_error_line(res)
+
+
 def test_existing_output_files_and_folders_are_replaced(small_kitti, tmp_path):
     from typer.testing import CliRunner
 

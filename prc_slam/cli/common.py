@@ -192,8 +192,12 @@ def setup_logging(log_file: Path | None, quiet: bool) -> None:
     handler.setLevel(logging.WARNING if quiet else logging.INFO)
     root.addHandler(handler)
     if log_file is not None:
-        log_file.parent.mkdir(parents=True, exist_ok=True)
-        fh = logging.FileHandler(log_file)
+        check_outputs(log_file=(log_file, "file"))
+        try:
+            log_file.parent.mkdir(parents=True, exist_ok=True)
+            fh = logging.FileHandler(log_file)
+        except OSError as exc:
+            raise fail(f"--log-file {log_file}: {exc.strerror or exc}") from None
         fh.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
         root.addHandler(fh)
 
