@@ -255,6 +255,15 @@ def udp_payloads(path: str | Path, limit: int = 64) -> list[bytes]:
     return out
 
 
+def check_capture(path: str | Path) -> None:
+    """Raise :class:`DataError` when ``path`` is not a pcap / pcapng capture (empty, or another file)."""
+    path = Path(path)
+    if path.is_file() and path.stat().st_size == 0:
+        raise DataError(f"{path}: empty file (no packet capture)")
+    for _ in Capture(path, max_packets=1):
+        break
+
+
 def looks_like_velodyne(path: str | Path) -> bool:
     """True when the capture's first packets include Velodyne data packets (1206 bytes, first
     block flag 0xFFEE), whatever other traffic comes before them."""

@@ -201,6 +201,16 @@ def test_a_capture_without_velodyne_packets_is_a_one_line_error(tmp_path):
         VelodynePcapSequence(bad)
 
 
+@pytest.mark.parametrize("content, message", [(b"", "empty file"), (b"hello\n", "not a pcap or pcapng capture")])
+def test_an_empty_or_foreign_pcap_says_so(tmp_path, content, message):
+    """It said 'no Ouster sensor metadata: expected ...json beside it'."""
+    path = tmp_path / "x.pcap"
+    path.write_bytes(content)
+    with pytest.raises(DataError, match=message) as exc:
+        open_dataset(path)
+    assert "Ouster" not in str(exc.value) and str(path) in str(exc.value)
+
+
 # --------------------------------------------------------------------------------------------
 # Ouster captures
 
