@@ -81,7 +81,7 @@ MAX_COLLISIONS = 0.5
 #: elevations show no beam structure (uniform elevations give ~0.5)
 MIN_BEAM_CONCENTRATION = 0.65
 
-#: the spin axis is searched this far (deg) from the points' z axis (:func:`estimate_spin_axis`)
+#: :func:`estimate_spin_axis` searches this far (deg) from the points' z axis
 SPIN_AXIS_MAX_TILT_DEG = 20.0
 #: the points are organised about the spin axis found when it is at least this far from z (deg;
 #: KITTI 00's own sweeps give 0.36, level sensors' 0-0.4; 2 deg already put 15 % of a 64-beam
@@ -910,22 +910,26 @@ def _axes_around(axis: np.ndarray, half_deg: float, step_deg: float) -> np.ndarr
 def estimate_spin_axis(
     xyz: np.ndarray, max_tilt_deg: float = SPIN_AXIS_MAX_TILT_DEG, samples: int = 20000
 ) -> tuple[np.ndarray, float, float]:
-    """The axis a multi-beam sensor spun about, from one sweep given in any frame within
+    """The axis a multi-beam sensor spun about, from one sweep given in a frame within
     ``max_tilt_deg`` of it (a vehicle frame, a tilted mount's base).
 
     Each beam sweeps a cone about the spin axis, so about the right axis the elevations of the
     points bunch at the beams' elevations and the elevation histogram is sharpest (largest sum
     of squared counts, as :func:`estimate_beam_offset` judges an offset); about an axis tilted by
-    ``t`` every beam smears over +-``t``. Searched on a grid in four steps (1 deg over the whole
-    range on 4,000 points, then 0.25, 0.05 and 0.01 deg around the best on up to 20,000), the
-    points nearer than 3 m left out (beam-origin offsets smear those).
+    ``t`` every beam smears over +-``t``. Searched on a grid in four steps (1 deg steps over the
+    whole range, ``z`` itself on the grid, on 4,000 points; then 0.25, 0.05 and 0.01 deg around
+    the best on up to 20,000), the points nearer than 3 m left out (beam-origin offsets smear
+    those). Not a search over every direction: a cloud with many points on one plane through the
+    sensor (the scan columns of a solid-state sensor such as the AT128) is sharpest about that
+    plane's normal, far from any spin axis.
 
     Returns
     -------
     axis : ndarray (3,)
         Unit spin axis in the points' frame (``z`` when nothing better is found).
     tilt_deg : float
-        Its angle from ``z``.
+        Its angle from ``z``; ``nan`` when the best axis of the first step lies on the edge of
+        the range (the spin axis is likely farther off: nothing is concluded).
     gain : float
         Sharpness about ``axis`` over that about ``z`` (0.1 deg bins; 1 when they are the same).
     """
@@ -935,16 +939,20 @@ def estimate_spin_axis(
     idx = np.flatnonzero(np.isfinite(r) & (r > 3.0) & (r < MAX_RANGE))
     if len(idx) < 500:
         return z, 0.0, 1.0
-    if len(idx) > samples:
-        idx = np.sort(np.random.default_rng(0).choice(idx, samples, replace=False))
+    idx = np.random.default_rng(0).permutation(idx)[:samples]  # in random order: u[:n] is a random subset
     u = xyz[idx].astype(np.float64) / r[idx, None]
     axis = z
-    for half, step, bin_deg, n in ((max_tilt_deg, 1.0, 0.2, 4000), (1.5, 0.25, 0.1, 8000), (0.3, 0.05, 0.05, None),
-                                   (0.06, 0.01, 0.02, None)):  # fmt: skip
+    for k, (half, step, bin_deg, n) in enumerate(
+        ((max_tilt_deg, 1.0, 0.2, 4000), (1.5, 0.25, 0.1, 8000), (0.3, 0.05, 0.05, None), (0.06, 0.01, 0.02, None))
+    ):
         cand = _axes_around(axis, half, step)
         score = np.empty(len(cand))
         _axis_sharpness(u[:n], cand, np.radians(bin_deg), score)
-        axis = cand[int(np.argmax(score))]
+        i = int(np.argmax(score))
+        side = round(np.sqrt(len(cand)))
+        if k == 0 and (i // side in (0, side - 1) or i % side in (0, side - 1)):
+            return cand[i], float("nan"), 1.0
+        axis = cand[i]
     both = np.empty(2)
     _axis_sharpness(u, np.stack([z, axis]), np.radians(0.1), both)
     tilt = float(np.degrees(np.arccos(np.clip(axis[2], -1.0, 1.0))))
@@ -1021,11 +1029,12 @@ def warm_up() -> None:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                org = Organizer(source_name="warm-up")
+                org = Organizer(source_name="warm-up", find_spin_axis=False)  # (searched once below)
                 for _ in range(2):  # later sweeps of a sequence take other kernels (ring order)
                     org.scan(**kwargs)
         except DataError:
             pass
+    estimate_spin_axis(points[:1000])
 
 
 class Organizer:
@@ -1214,6 +1223,13 @@ class Organizer:
         """Set :attr:`rotation` from the first sweep when its spin axis is clearly off ``z``
         (:data:`SPIN_AXIS_MIN_TILT_DEG`, :data:`SPIN_AXIS_MIN_GAIN`), and say so."""
         axis, tilt, gain = estimate_spin_axis(xyz)
+        if np.isnan(tilt):
+            warnings.append(
+                f"{source}: the beams bunch best about an axis {SPIN_AXIS_MAX_TILT_DEG:.0f} deg or more from the "
+                "points' z axis (a sensor mounted on its side?): organised about z, which may fail; give the points "
+                "in the sensor's frame"
+            )
+            return
         if tilt < SPIN_AXIS_MIN_TILT_DEG or gain < SPIN_AXIS_MIN_GAIN:
             return
         self.rotation = spin_rotation(axis)

@@ -599,3 +599,17 @@ def test_a_level_sweep_is_left_about_z():
     off = Organizer(find_spin_axis=False).scan(slight)
     np.testing.assert_array_equal(scan.point_slot, off.point_slot)
     np.testing.assert_array_equal(scan.ranges, off.ranges)
+
+
+def test_a_spin_axis_beyond_the_search_is_said_not_guessed():
+    """30 deg off z (beyond SPIN_AXIS_MAX_TILT_DEG): the best axis of the search lies on its edge,
+    so nothing is concluded; the sweep is organised about z with a warning saying why."""
+    from data_tools.organize import SPIN_AXIS_MAX_TILT_DEG, estimate_spin_axis
+
+    xyz = spinning_sweep(rings=16, cols=720, keep=0.8, seed=5, del_=1.0)[0]
+    far, _ = tilt(xyz, SPIN_AXIS_MAX_TILT_DEG + 10.0, 60.0)
+    assert np.isnan(estimate_spin_axis(far)[1])
+    org = Organizer()
+    scan = org.scan(far)
+    assert org.rotation is None
+    assert any("mounted on its side" in w for w in scan.meta["organize"]["warnings"])
