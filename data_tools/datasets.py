@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
+from typing import Any
 
 from data_tools.errors import DataError
 from data_tools.sequence import Dataset
+
+log = logging.getLogger("data_tools.datasets")
 
 FORMATS = ("kitti", "ouster", "sim", "ouster-pcap", "velodyne-pcap", "pcd", "las", "rosbag")
 # aliases accepted by --format
@@ -145,11 +149,32 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
             method=str(options.get("organize_method") or "auto"),
         )
     if fmt == "rosbag":
-        from data_tools.rosbag import open_recording
-
         topic = options.get("topic")
         organizer = None
         if any(k in given for k in _ORGANISER_OPTIONS):
             organizer = _organiser(Path(path), options)
         return open_recording(path, topic=None if topic is None else str(topic), organizer=organizer)
     raise DataError(f"{path}: unsupported format {fmt!r}; choose from {FORMATS}")
+
+
+def open_recording(path: str | Path, topic: str | None = None, *, organizer: Any = None) -> Dataset:
+    """A ROS recording as a dataset: its ``PointCloud2`` topic (:class:`~data_tools.rosbag.RosbagSequence`),
+    or, when it holds no PointCloud2 but raw Velodyne packets (``velodyne_msgs/VelodyneScan``), their
+    sweeps decoded (:class:`~data_tools.velodyne_pcap.VelodyneScanSequence`)."""
+    from data_tools.rosbag import RosbagSequence, velodyne_scan_topics
+
+    try:
+        return RosbagSequence(path, topic, organizer=organizer)
+    except DataError:
+        scans = velodyne_scan_topics(Path(path))
+        if not scans or (topic is not None and topic not in scans):
+            raise
+        if topic is None and len(scans) > 1:
+            raise DataError(
+                f"{path}: {len(scans)} VelodyneScan topics, choose one with --topic: {', '.join(sorted(scans))}"
+            ) from None
+        from data_tools.velodyne_pcap import VelodyneScanSequence
+
+        if organizer is not None:
+            log.warning("%s: --rows/--cols/--organize do not apply to raw Velodyne packets; ignored", path)
+        return VelodyneScanSequence(path, topic or scans[0])

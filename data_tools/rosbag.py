@@ -480,28 +480,9 @@ def reader_paths(path: Path) -> list[Path]:
 VELODYNE_SCAN = ("velodyne_msgs/msg/VelodyneScan", "velodyne_msgs/VelodyneScan")
 
 
-def open_recording(path: str | Path, topic: str | None = None, *, organizer: Any = None) -> Any:
-    """A recording as a dataset: its ``PointCloud2`` topic (:class:`RosbagSequence`), or, when it
-    holds no PointCloud2 but raw Velodyne packets (``velodyne_msgs/VelodyneScan``), their sweeps
-    decoded (:class:`data_tools.velodyne_pcap.VelodyneScanSequence`)."""
-    try:
-        return RosbagSequence(path, topic, organizer=organizer)
-    except DataError:
-        scans = _velodyne_scan_topics(Path(path))
-        if not scans or (topic is not None and topic not in scans):
-            raise
-        if topic is None and len(scans) > 1:
-            raise DataError(
-                f"{path}: {len(scans)} VelodyneScan topics, choose one with --topic: {', '.join(sorted(scans))}"
-            ) from None
-        from data_tools.velodyne_pcap import VelodyneScanSequence
-
-        if organizer is not None:
-            log.warning("%s: --rows/--cols/--organize do not apply to raw Velodyne packets; ignored", path)
-        return VelodyneScanSequence(path, topic or scans[0])
-
-
-def _velodyne_scan_topics(path: Path) -> list[str]:
+def velodyne_scan_topics(path: Path) -> list[str]:
+    """The topics of raw Velodyne packets (``velodyne_msgs/VelodyneScan``) in a recording (none
+    when it cannot be read: the PointCloud2 reader's error then stands)."""
     from rosbags.highlevel import AnyReader
 
     try:
