@@ -1277,10 +1277,21 @@ class Organizer:
             med = np.interp(np.arange(H), np.flatnonzero(known), med[known])
         else:
             med = np.where(known, med, med[known][0] if known.any() else 0.0)
-        order = np.argsort(-med, kind="stable")  # top beam first
+        # rows without a return between rows with returns (every other beam off: a sensor in a
+        # reduced-beam mode, a dead laser) go after the others, so that neighbouring beams are
+        # neighbouring rows (interleaved, they left PRC no row neighbours: every return noise)
+        have = np.flatnonzero(known)
+        inner = ~known & (np.arange(H) > have[0]) & (np.arange(H) < have[-1]) if len(have) else np.zeros(H, bool)
+        order = np.lexsort((-med, inner))  # top beam first (stable), the inner empty rows last
         inv = np.empty(H, np.int64)
         inv[order] = np.arange(H)
-        if not np.array_equal(order, np.arange(H)) and not np.array_equal(order, np.arange(H)[::-1]):
+        if inner.any():
+            warnings.append(
+                f"{source}: {int(inner.sum())} of {H} rows of the organised cloud hold no return between rows that do "
+                "(a reduced-beam mode?): put after the others, so that neighbouring beams are neighbouring rows"
+            )
+        ranked = order[~inner[order]]
+        if not np.all(np.diff(ranked) > 0) and not np.all(np.diff(ranked) < 0):
             msg = f"{source}: rows of the organised cloud are not ordered by elevation; reordered top beam first"
             warnings.append(msg)
         row = np.repeat(inv, W)

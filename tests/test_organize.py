@@ -613,3 +613,31 @@ def test_a_spin_axis_beyond_the_search_is_said_not_guessed():
     scan = org.scan(far)
     assert org.rotation is None
     assert any("mounted on its side" in w for w in scan.meta["organize"]["warnings"])
+
+
+def test_organised_cloud_with_every_other_beam_off_keeps_neighbouring_beams_together():
+    """An organised cloud (Ouster driver) of a sensor with every other beam off (a reduced-beam
+    mode): interleaved, the empty rows left PRC no row neighbours and every return was noise; they
+    go after the others, said once per sweep, and PRC labels the sweep as it does the sensor with
+    those beams only."""
+    from prc_slam.config import PRCConfig
+    from prc_slam.prc import classify_scan
+
+    sim_mod = pytest.importorskip("data_tools.sim.simulator")
+    sim = sim_mod.Simulator(sim_mod.SimConfig(scene="urban", sensor="hdl64", frames=1))
+    f = sim.frame(0)
+    grid = sim.sensor.model.to_xyz(f.ranges)
+    half = grid.copy()
+    half[1::2] = 0.0  # every other beam off
+    scan = Organizer().scan_organized(half)
+    assert any("hold no return between rows that do" in w for w in scan.meta["organize"]["warnings"])
+    rows_with_returns = np.flatnonzero((scan.ranges > 0).any(axis=1))
+    np.testing.assert_array_equal(rows_with_returns, np.arange(32))  # the 32 beams on, together at the top
+    assert np.all(np.diff(scan.sensor.altitude[:32]) < 0)
+    alone = Organizer().scan_organized(grid[0::2].copy())  # the sensor with those 32 beams only
+    cfg = PRCConfig.preset("multibeam")
+    on = np.repeat(np.arange(half.shape[0]) % 2 == 0, half.shape[1])  # the points of the beams on
+    np.testing.assert_array_equal(
+        scan.per_point(classify_scan(scan, cfg))[on], alone.per_point(classify_scan(alone, cfg))
+    )
+    assert scan.n_points == half.shape[0] * half.shape[1]
