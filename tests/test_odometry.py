@@ -289,6 +289,8 @@ def test_compare_with_a_skipped_frame_says_which_frame_each_line_is(short_drive,
     np.testing.assert_allclose([float(ln[1]) for ln in lines], times[[0, 1, 3, 4, 5]], atol=1e-6)
     for name in ("raw", "prc", "ground_truth"):
         assert len(np.loadtxt(out / f"{name}_poses_kitti.txt")) == 5
+    said = res.output.replace("\n", "")
+    assert all(f"{name}_poses_{fmt}.txt" in said for name in ("raw", "prc", "ground_truth") for fmt in ("kitti", "tum"))
     report = (out / "report.md").read_text()
     assert "## Skipped frames (1)" in report and "input frame 2" in report and "000002.npz" in report
 

@@ -174,7 +174,9 @@ def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> li
         if run.online is not None:
             f.write(classification_section(run.online, "Online detectors against the reference"))
     run.metrics = metrics
-    return [out / "report.md", out / "metrics.json", out / "trajectories.png", out / "config.yaml", frames_txt]
+    names = [*run.result.runs, *(["ground_truth"] if run.result.gt_poses is not None else [])]
+    poses = [out / f"{name}_poses_{fmt}.txt" for name in names for fmt in ("kitti", "tum")]
+    return [out / "report.md", out / "metrics.json", out / "trajectories.png", out / "config.yaml", frames_txt, *poses]
 
 
 def trajectory_file(run: OdometryRun, name: str, path: Path, pose_format: str = "kitti") -> Path:
