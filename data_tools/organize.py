@@ -1189,9 +1189,10 @@ class Organizer:
         self._order = _polar(xyz, self.beam_offset, ok, rng, az, te, cloud, rot, rotate)
         n_ok = int(ok.sum())
         if n_ok == 0:
-            raise DataError(
-                f"{source}: no point with a return ({n} points, all NaN/inf, at the origin or beyond 100 km)"
-            )
+            what = f"no point with a return ({n} points, all NaN/inf, at the origin or beyond 100 km)"
+            if self._sensor is None:  # the first sweep: no geometry to give it
+                raise DataError(f"{source}: {what}")
+            return self._empty(cloud, name, source, frame_time, gt_point_labels, gt_point_instance, gt_pose, what)
         if times is not None:
             times = np.asarray(times, dtype=np.float64)
             if not np.isfinite(times[ok]).all():
@@ -1668,6 +1669,26 @@ class Organizer:
             gt_point_labels, gt_point_instance, gt_pose, report, collisions, slot_times_given=times is not None,
         )  # fmt: skip
         return scan
+
+    def _empty(self, cloud, name, source, frame_time, gt_point_labels, gt_point_instance, gt_pose, what) -> Scan:
+        """A sweep without a single return after sweeps that had some (an empty message, a blocked
+        sensor): the sequence's range image with every slot empty, each input point (if any) in an
+        empty slot with label 0, said once per sweep, so that the frame keeps its place in every
+        output (label files, rewritten recordings) instead of being skipped."""
+        sensor = self._sensor[1]
+        rows, cols = sensor.rows, sensor.cols
+        n = len(cloud)
+        warnings = [f"{source}: {what}: an empty sweep, every point labelled no return"] if n else []
+        for w in warnings:  # (a sweep of no points at all is said by the pipeline)
+            log.warning(w)
+        self.warnings_total += len(warnings)
+        self.frames += 1
+        report = OrganizeReport("empty", 0, self.expected_rows, cols, 0.0, rows, n, warnings)
+        none, empty = np.zeros(n, np.int64), np.full(rows * cols, -1, np.int64)  # every point in slot 0, empty
+        return self._finish(
+            cloud, np.zeros(n, bool), np.zeros(n, np.float32), none, empty, rows, cols, sensor, None, None, name,
+            source, frame_time, gt_point_labels, gt_point_instance, gt_pose, report, 0, slot_times_given=False,
+        )  # fmt: skip
 
     def _sensor_model(self, rows: int, cols: int, s: int, a0: float) -> SpinningSensor:
         """The sequence's sensor model, one object for as long as its parameters hold (its

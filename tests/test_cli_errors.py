@@ -81,19 +81,34 @@ def test_malformed_poses_name_the_file_and_line(tmp_path, kitti):
 
 
 def test_empty_sweep_is_counted_and_reported(tmp_path, kitti):
+    """An empty sweep after the first keeps its place: counted and said as empty, a label file of
+    no entries (it was skipped, leaving no label file: one file per input frame is the contract);
+    sweeps without a return before the first with one, whose geometry nothing gives, are skipped
+    and said."""
     import shutil
 
     root = tmp_path / "k"
     shutil.copytree(kitti, root)
     (root / "labels" / "000001.label").unlink()
     (root / "velodyne" / "000001.bin").write_bytes(b"")
-    res = runner.invoke(app, ["classify", str(root), "--json", str(tmp_path / "m.json")])
+    out = tmp_path / "labels"
+    res = runner.invoke(app, ["classify", str(root), "--json", str(tmp_path / "m.json"), "--labels-out", str(out)])
     assert res.exit_code == 0, res.output
     warnings = [line for line in res.output.splitlines() if line.startswith("warning:")]
-    assert any("000001.bin" in w and "skipped frame 1" in w for w in warnings), res.output
+    assert any("000001.bin" in w and "empty sweep" in w for w in warnings), res.output
     m = json.loads((tmp_path / "m.json").read_text())
-    assert m["skipped_frames"] == 1 and m["frames"] == 2
-    assert "000001.bin" in m["skips"][0]["reason"]
+    assert (m["skipped_frames"], m["empty_frames"], m["frames"]) == (0, 1, 3)
+    assert sorted(p.name for p in out.iterdir()) == ["000000.label", "000001.label", "000002.label"]
+    assert (out / "000001.label").stat().st_size == 0
+    nan = np.full((50, 4), np.nan, np.float32)
+    nan.tofile(root / "velodyne" / "000000.bin")
+    (root / "labels" / "000000.label").unlink()
+    res = runner.invoke(app, ["classify", str(root), "--json", str(tmp_path / "m.json")])
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "m.json").read_text())
+    # frames 0 (NaN only) and 1 (empty) come before any sweep with a return: both skipped
+    assert (m["skipped_frames"], m["empty_frames"], m["frames"]) == (2, 0, 1)
+    assert "000000.bin" in m["skips"][0]["reason"] and "000001.bin" in m["skips"][1]["reason"]
 
 
 def test_nan_points_become_no_returns_counted(tmp_path, kitti):

@@ -641,3 +641,22 @@ def test_organised_cloud_with_every_other_beam_off_keeps_neighbouring_beams_toge
         scan.per_point(classify_scan(scan, cfg))[on], alone.per_point(classify_scan(alone, cfg))
     )
     assert scan.n_points == half.shape[0] * half.shape[1]
+
+
+def test_a_sweep_without_a_return_after_others_keeps_its_place():
+    """An empty message or a blocked sensor mid-sequence: the sequence's range image, every slot
+    empty, every input point (NaN ones too) in an empty slot (label 0); it is not skipped. Before
+    any sweep with a return there is no geometry to give it: an error (the frame is skipped)."""
+    xyz = spinning_sweep(rings=8, cols=360, seed=2)[0]
+    with pytest.raises(DataError, match="no point with a return"):
+        Organizer().scan(np.full((20, 3), np.nan, np.float32))
+    org = Organizer()
+    first = org.scan(xyz)
+    blocked = org.scan(np.full((40, 3), np.nan, np.float32), source="blocked")
+    assert blocked.shape == first.shape and not blocked.valid.any()
+    assert blocked.n_points == 40
+    np.testing.assert_array_equal(blocked.per_point(np.full(blocked.shape, 5, np.uint8) * blocked.valid), 0)
+    assert any("an empty sweep" in w for w in blocked.meta["organize"]["warnings"])
+    nothing = org.scan(np.zeros((0, 3), np.float32))
+    assert nothing.n_points == 0 and nothing.shape == first.shape
+    assert org.scan(xyz).meta["organize"]["rings"] == 8  # and the sequence goes on
