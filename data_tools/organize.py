@@ -919,9 +919,10 @@ def estimate_spin_axis(
     ``t`` every beam smears over +-``t``. Searched on a grid in four steps (1 deg steps over the
     whole range, ``z`` itself on the grid, on 4,000 points; then 0.25, 0.05 and 0.01 deg around
     the best on up to 20,000), the points nearer than 3 m left out (beam-origin offsets smear
-    those). Not a search over every direction: a cloud with many points on one plane through the
-    sensor (the scan columns of a solid-state sensor such as the AT128) is sharpest about that
-    plane's normal, far from any spin axis.
+    those); not at all when the sweep is sharper about ``z`` than about the eight axes 1 deg
+    around it (a level sweep: ``z`` is returned at once). Not a search over every direction: a
+    cloud with many points on one plane through the sensor (the scan columns of a solid-state
+    sensor such as the AT128) is sharpest about that plane's normal, far from any spin axis.
 
     Returns
     -------
@@ -935,12 +936,19 @@ def estimate_spin_axis(
     """
     z = np.array([0.0, 0.0, 1.0])
     xyz = np.asarray(xyz)
-    r = np.linalg.norm(xyz.astype(np.float64), axis=1)
-    idx = np.flatnonzero(np.isfinite(r) & (r > 3.0) & (r < MAX_RANGE))
-    if len(idx) < 500:
+    pick = np.random.default_rng(0).permutation(len(xyz))[: 3 * samples]  # in random order: u[:n] is a random subset
+    p = xyz[pick].astype(np.float64)
+    r = np.linalg.norm(p, axis=1)
+    keep = np.flatnonzero(np.isfinite(r) & (r > 3.0) & (r < MAX_RANGE))[:samples]
+    if len(keep) < 500:
         return z, 0.0, 1.0
-    idx = np.random.default_rng(0).permutation(idx)[:samples]  # in random order: u[:n] is a random subset
-    u = xyz[idx].astype(np.float64) / r[idx, None]
+    u = p[keep] / r[keep, None]
+    # the common case first: a level sweep is sharper about z than about the 8 axes 1 deg around
+    ring = _axes_around(z, 1.0, 1.0)
+    score = np.empty(len(ring))
+    _axis_sharpness(u, ring, np.radians(0.1), score)
+    if score[4] > score.max(initial=0.0, where=np.arange(len(ring)) != 4):  # (4: z itself)
+        return z, 0.0, 1.0
     axis = z
     for k, (half, step, bin_deg, n) in enumerate(
         ((max_tilt_deg, 1.0, 0.2, 4000), (1.5, 0.25, 0.1, 8000), (0.3, 0.05, 0.05, None), (0.06, 0.01, 0.02, None))
