@@ -585,6 +585,10 @@ def test_points_in_a_tilted_frame_are_organised_about_the_spin_axis(deg, towards
     np.testing.assert_array_equal(turned.points(), tilted)  # the points are not moved
     rays = turned.sensor.to_xyz(turned.ranges).reshape(-1, 3)[turned.point_slot]
     np.testing.assert_allclose(rays, tilted, atol=0.01 * np.linalg.norm(xyz, axis=1).max())
+    from prc_slam.scan import sensor_from_description  # the mount survives a description
+
+    again = sensor_from_description(turned.sensor.describe())
+    np.testing.assert_allclose(again.directions(), turned.sensor.directions(), atol=1e-8)
 
 
 def test_a_level_sweep_is_left_about_z():
