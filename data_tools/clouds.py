@@ -207,10 +207,27 @@ def cloud_crs(path: str | Path) -> list:
     return [v for v in vlrs if type(v).__name__ in CRS_VLRS]
 
 
-def cloud_classes(path: str | Path) -> tuple[np.ndarray, np.ndarray | None] | None:
+def cloud_grid(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """A LAS/LAZ file's ``(scales, offsets)``, for the classified clouds to store the points on
+    the input's own grid (a 0.1 mm input written at 1 mm moved its points by up to 0.5 mm);
+    None for other formats."""
+    path = Path(path)
+    if path.suffix.lower() not in (".las", ".laz"):
+        return None
+    import laspy
+
+    try:
+        with laspy.open(path, laz_backend=laz_backend(path)) as f:
+            return np.array(f.header.scales, np.float64), np.array(f.header.offsets, np.float64)
+    except (laspy.LaspyException, ValueError, OSError, RuntimeError) as exc:  # lazrs errors are RuntimeErrors
+        raise DataError(f"{path}: not a readable LAS file ({exc})") from exc
+
+
+def cloud_classes(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None] | None:
     """A LAS/LAZ file's own classes (``classification``, and the ``instance`` dimension when
-    present), to score a map against; None for other formats and for files whose classes are
-    only 0 (never classified) and 1 (unclassified)."""
+    present), to score a map against, and the points to score (None: all; LAS withheld points,
+    which the specification says to treat as deleted, are not scored); None for other formats
+    and for files whose classes are only 0 (never classified) and 1 (unclassified)."""
     path = Path(path)
     if path.suffix.lower() not in (".las", ".laz"):
         return None
@@ -224,5 +241,8 @@ def cloud_classes(path: str | Path) -> tuple[np.ndarray, np.ndarray | None] | No
     codes = np.asarray(las.classification, np.uint8)
     if not np.isin(codes, (0, 1), invert=True).any():
         return None
-    inst = np.asarray(las["instance"], np.uint32) if "instance" in las.point_format.dimension_names else None
-    return codes, inst
+    names = set(las.point_format.dimension_names)
+    inst = np.asarray(las["instance"], np.uint32) if "instance" in names else None
+    withheld = np.asarray(las.withheld, bool) if "withheld" in names else None
+    scored = None if withheld is None or not withheld.any() else ~withheld
+    return codes, inst, scored

@@ -111,15 +111,24 @@ class ClassSplitWriter:
     """Segregation into sub-clouds (paper 004): one combined LAS 1.4 file with every point and
     one LAS 1.4 file per class present (``<class name>.las``), written chunk by chunk. When the
     combined name ends in ``.laz`` every file is LAZ-compressed (``<class name>.laz``). ``crs``:
-    the input's coordinate reference system records, written in every file.
+    the input's coordinate reference system records, written in every file; ``grid``: the input's
+    ``(scales, offsets)`` (a LAS input's, :func:`data_tools.clouds.cloud_grid`), so that every
+    point keeps its stored coordinates (default: 1 mm from the first chunk's minimum).
 
     Use as a context manager; ``write(xyz, codes)`` may be called any number of times.
     """
 
-    def __init__(self, out_dir: str | Path, combined: str = "map_classified.las", crs: list | None = None) -> None:
+    def __init__(
+        self,
+        out_dir: str | Path,
+        combined: str = "map_classified.las",
+        crs: list | None = None,
+        grid: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> None:
         self.out_dir = Path(out_dir)
         self.combined_name = combined
         self.crs = list(crs or [])  # the input's CRS VLRs (data_tools.clouds.cloud_crs), written in every file
+        self.grid = grid
         self._writers: dict[str, laspy.LasWriter] = {}
         self._header: laspy.LasHeader | None = None
         self.counts: dict[str, int] = {}
@@ -162,8 +171,12 @@ class ClassSplitWriter:
             return
         if self._header is None:
             self._header = laspy.LasHeader(point_format=6, version="1.4")
-            self._header.scales = np.array([0.001, 0.001, 0.001])
-            self._header.offsets = np.floor(xyz.min(axis=0))
+            if self.grid is not None:
+                self._header.scales = np.asarray(self.grid[0], np.float64)
+                self._header.offsets = np.asarray(self.grid[1], np.float64)
+            else:
+                self._header.scales = np.array([0.001, 0.001, 0.001])
+                self._header.offsets = np.floor(xyz.min(axis=0))
             for vlr in self.crs:
                 self._header.vlrs.append(vlr)
             if any(type(v).__name__ == "WktCoordinateSystemVlr" for v in self.crs):

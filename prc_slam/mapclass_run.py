@@ -20,9 +20,18 @@ MAP_CLASSES = [L.GROUND, L.BUILDING, L.VEHICLE, L.POLE, L.VEGETATION]
 FOREST_CLASSES = [L.GROUND, L.BUILDING, L.VEHICLE, L.TRUNK, L.VEGETATION]
 #: reference codes folded into paper 004's classes before scoring (curbs are ground; the paper
 #: has no stem class: trunks belong to the vegetation outside forest mode)
-MAP_REFERENCE = {L.CURB: L.GROUND, L.TRUNK: L.VEGETATION, 3: L.VEGETATION, 4: L.VEGETATION, 18: L.NOISE}
-#: (ASPRS low and medium vegetation, 3 and 4, are vegetation and high noise, 18, is noise, so a
-#: public tile's own classes can serve as the reference)
+MAP_REFERENCE = {
+    L.CURB: L.GROUND,
+    L.TRUNK: L.VEGETATION,
+    3: L.VEGETATION,
+    4: L.VEGETATION,
+    11: L.GROUND,
+    18: L.NOISE,
+    20: L.GROUND,
+}
+#: (ASPRS low and medium vegetation, 3 and 4, are vegetation, road surface and ignored ground, 11
+#: and 20, are ground and high noise, 18, is noise, so a public tile's own classes can serve as the
+#: reference)
 #: a reference object counts as present with this many map points, as found with this share
 OBJECT_MIN_POINTS, OBJECT_SHARE = 100, 0.5
 #: clouds up to this size are classified in one piece unless a tile size is given

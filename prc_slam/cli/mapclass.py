@@ -62,8 +62,8 @@ def print_mapclass(metrics: dict[str, Any], title: str) -> None:
         print_table(class_table(metrics, title))
         if "scored_points" in metrics:  # a map of frames of which only some carry reference labels
             console.print(
-                f"scored on the {metrics['scored_points']:,} of {metrics['points']:,} points from frames with "
-                "reference labels",
+                f"scored on the {metrics['scored_points']:,} of {metrics['points']:,} "
+                + metrics.get("scored_on", "points from frames with reference labels"),
                 highlight=False,
             )
     for name, o in metrics.get("objects", {}).items():

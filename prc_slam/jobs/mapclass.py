@@ -120,6 +120,7 @@ def classify_map(
     reference_known: np.ndarray | None = None,
     prc_known: np.ndarray | None = None,
     crs: list | None = None,
+    grid: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """Classify, write the per-class LAS (``laz``: LAZ) files, score; returns the metrics. Tiled
     runs keep the labels in a memory-mapped scratch file (one byte per point), so the map never
@@ -127,7 +128,8 @@ def classify_map(
 
     ``reference_known`` / ``prc_known``: the points that have a reference / PRC label (a map
     accumulated from frames of which only some are labelled); the scores count only those
-    (``scored_points``, ``prc_points``). ``crs``: the input's CRS records, copied to every file."""
+    (``scored_points``, ``prc_points``). ``crs``: the input's CRS records, copied to every file;
+    ``grid``: its LAS ``(scales, offsets)``, kept in every file."""
     from data_tools.writers import ClassSplitWriter
     from prc_slam.mapclass.classify import DensityWarning
     from prc_slam.mapclass_run import UNTILED_MAX_POINTS, prc_agreement, run_mapclass, score_map
@@ -151,7 +153,9 @@ def classify_map(
             )  # fmt: skip
         for message in metrics.get("messages", []):
             log.warning(message)
-        with ClassSplitWriter(out, combined="map_classified.laz" if laz else "map_classified.las", crs=crs) as writer:
+        with ClassSplitWriter(
+            out, combined="map_classified.laz" if laz else "map_classified.las", crs=crs, grid=grid
+        ) as writer:
             start = 0
             for part, chunk in enumerate(points_source()):
                 writer.write(chunk, labels[start : start + len(chunk)])
@@ -199,7 +203,7 @@ def mapclass_job(
 
     A LAS/LAZ file that carries classes of its own (beyond 0 and 1) is scored against them
     (``reference=None``: when it has them; True: required; False: never)."""
-    from data_tools.clouds import cloud_chunks, cloud_classes, cloud_crs, cloud_size, is_cloud_file
+    from data_tools.clouds import cloud_chunks, cloud_classes, cloud_crs, cloud_grid, cloud_size, is_cloud_file
     from data_tools.errors import DataError
     from prc_slam.jobs.common import open_input
     from prc_slam.mapclass.tiles import array_chunks
@@ -209,16 +213,23 @@ def mapclass_job(
         own = None if reference is False else cloud_classes(input)
         if reference and own is None:
             raise ValueError(f"--reference: {input} carries no classes to score against")
-        ref, inst = own if own is not None else (None, None)
+        ref, inst, scored = own if own is not None else (None, None, None)
         size = cloud_size(input)
         if size == 0:
             raise DataError(f"{input}: the cloud holds no points")
         metrics = classify_map(
             lambda: cloud_chunks(input), size, cfg, out, tile, margin, ref, inst, viewer=viewer,
-            reporter=reporter, laz=laz, tiler=tiler, crs=cloud_crs(input),
+            reporter=reporter, laz=laz, tiler=tiler, crs=cloud_crs(input), grid=cloud_grid(input),
+            reference_known=scored,
         )  # fmt: skip
+        if scored is not None:
+            metrics["scored_on"] = "points not withheld (LAS withheld flag)"
         if own is not None and note is not None:
-            note(f"scored against the classes stored in {input}")
+            skipped = 0 if scored is None else int(np.count_nonzero(~scored))
+            note(
+                f"scored against the classes stored in {input}"
+                + (f" ({skipped:,} withheld points not scored)" if skipped else "")
+            )
     else:
         dataset, n = open_input(input, fmt, max_frames, **open_options)
         cloud = map_from_dataset(dataset, n, every, poses)
