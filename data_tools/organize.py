@@ -54,6 +54,7 @@ import numpy as np
 from numba import njit
 
 from data_tools.errors import DataError
+from prc_slam.prc.ground import levelling_rotation
 from prc_slam.scan import Scan, SpinningSensor
 from prc_slam.threads import in_threads
 
@@ -196,7 +197,7 @@ def _polar(xyz, offset, ok, rng, az, te, cloud, rot, rotate, small=0.78539816339
     steps (revolutions * 2 pi), which tell the point order. Writes into ``ok, rng, az, te``
     (work arrays reused from sweep to sweep: fresh ones cost page faults) and copies the
     points into ``cloud`` (float32, no-return rows zeroed). With ``rotate``, azimuth and elevation
-    are those of ``rot @ p`` (the spin frame, :func:`spin_rotation`); ``cloud`` keeps the points."""
+    are those of ``rot @ p`` (the spin frame); ``cloud`` keeps the points."""
     n = xyz.shape[0]
     prev = 0.0
     have = False
@@ -779,8 +780,7 @@ def estimate_beam_offset(
     ``atan(z / (rho - n))`` from the sensor origin, so near points of one beam spread in
     elevation unless ``n`` is known. The estimate is the ``n`` (1 mm steps, ``|n| <=
     max_offset``) that makes the elevation histogram sharpest (largest sum of squared counts).
-    0 for decoders whose points come from one origin. ``rotation``: into the spin frame first
-    (:func:`spin_rotation`).
+    0 for decoders whose points come from one origin. ``rotation``: into the spin frame first.
     """
     xyz = np.asarray(xyz)
     idx = np.flatnonzero(np.isfinite(xyz).all(axis=1))
@@ -967,18 +967,6 @@ def estimate_spin_axis(
     return axis, tilt, float(both[1] / both[0]) if both[0] > 0 else 1.0
 
 
-def spin_rotation(axis: np.ndarray) -> np.ndarray:
-    """The smallest rotation that takes ``axis`` (unit) to ``z``: points ``p`` in the spin frame
-    are ``R @ p`` (azimuths stay near the points' own)."""
-    a = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    v = np.cross(a, [0.0, 0.0, 1.0])
-    c = float(a[2])
-    if np.linalg.norm(v) < 1e-12:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + k + k @ k / (1.0 + c)
-
-
 def beam_concentration(te: np.ndarray, beam_te: np.ndarray) -> float:
     """Share of points within a quarter of the local beam gap (in angle) of their nearest beam."""
     if len(beam_te) < 2 or len(te) == 0:
@@ -1128,7 +1116,8 @@ class Organizer:
         self._sensor: tuple[tuple, SpinningSensor] | None = None
         self.frames = 0
         self.warnings_total = 0
-        #: points' frame -> spin frame (:func:`spin_rotation`), None while the two are the same
+        #: points' frame -> spin frame (the smallest rotation taking the spin axis to z), None while
+        #: the two are the same
         self.rotation: np.ndarray | None = None
         self.spin_tilt_deg = 0.0
         self._find_axis = bool(find_spin_axis) and altitude is None
@@ -1241,7 +1230,7 @@ class Organizer:
             return
         if tilt < SPIN_AXIS_MIN_TILT_DEG or gain < SPIN_AXIS_MIN_GAIN:
             return
-        self.rotation = spin_rotation(axis)
+        self.rotation = levelling_rotation(axis)
         self.spin_tilt_deg = tilt
         ax, ay, az_ = axis
         warnings.append(

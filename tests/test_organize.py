@@ -542,21 +542,6 @@ def tilt(xyz: np.ndarray, deg: float, towards: float) -> tuple[np.ndarray, np.nd
     return (xyz.astype(np.float64) @ R.T).astype(np.float32), R
 
 
-def test_spin_rotation_is_the_smallest_rotation_to_z():
-    from data_tools.organize import spin_rotation
-
-    for axis in ([0.0, 0.0, 1.0], [0.1, -0.05, 0.99], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]):
-        a = np.asarray(axis) / np.linalg.norm(axis)
-        R = spin_rotation(a)
-        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
-        assert np.linalg.det(R) == pytest.approx(1.0)
-        np.testing.assert_allclose(R @ a, [0.0, 0.0, 1.0], atol=1e-12)
-    # a 3 deg tilt about x: the rotation back about x by 3 deg, nothing about z
-    a = np.array([0.0, -np.sin(np.radians(3.0)), np.cos(np.radians(3.0))])
-    R = spin_rotation(a)
-    np.testing.assert_allclose(R @ [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], atol=1e-12)
-
-
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(deg=st.floats(1.5, 18.0), towards=st.floats(0.0, 360.0), layout=st.sampled_from(["ring-major", "shuffled"]))
 def test_points_in_a_tilted_frame_are_organised_about_the_spin_axis(deg, towards, layout):
