@@ -1,6 +1,8 @@
 """Point-cloud files for map classification: LAS/LAZ (streamed in chunks with laspy; LAZ through
 the ``lazrs`` backend), PCD (:mod:`data_tools.pcd`), PLY (Open3D), NPY (an ``(N, 3)`` array,
-memory-mapped).
+memory-mapped; ``(N, k > 3)``: x, y, z are the first three columns; a structured array: its
+``x``, ``y``, ``z`` fields), NPZ (such an array, alone or named ``points`` / ``xyz``; an Ouster
+sweep ``.npz`` is a sequence, not a cloud).
 """
 
 from __future__ import annotations
@@ -82,14 +84,73 @@ def _ply_coordinate_dtype(path: Path) -> np.dtype:
     return max(found, key=lambda d: d.itemsize) if found else np.dtype(np.float64)
 
 
+#: arrays an ``.npz`` cloud may name its points by (one array alone needs no name)
+NPZ_POINT_KEYS = ("points", "xyz", "positions")
+
+
+def _is_ouster_npz(path: Path) -> bool:
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return "range_mm.npy" in zf.namelist()
+    except (zipfile.BadZipFile, OSError):
+        return False
+
+
 def is_cloud_file(path: str | Path) -> bool:
-    return Path(path).is_file() and Path(path).suffix.lower() in CLOUD_SUFFIXES
+    """A file map classification reads as one cloud (an Ouster ``.npz`` is a sweep to accumulate)."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    suffix = path.suffix.lower()
+    return suffix in CLOUD_SUFFIXES or (suffix == ".npz" and not _is_ouster_npz(path))
 
 
 def _check(path: Path, xyz: np.ndarray) -> np.ndarray:
     if xyz.ndim != 2 or xyz.shape[1] != 3:
         raise DataError(f"{path}: expected (N, 3) coordinates, got shape {xyz.shape}")
     return xyz
+
+
+def _array_xyz(path: Path, arr: np.ndarray) -> np.ndarray:
+    """x, y, z of a NumPy point array: ``(N, 3)``; ``(N, k > 3)`` (x, y, z first, then e.g.
+    intensity or normals); a structured array with ``x``, ``y``, ``z`` fields. Anything else
+    (``(3, N)``, one column, strings) is a one-line error."""
+    if arr.dtype.names is not None:
+        missing = [a for a in "xyz" if a not in arr.dtype.names]
+        if missing or arr.ndim != 1:
+            raise DataError(
+                f"{path}: a structured array needs 1-D x, y, z fields; it has fields {list(arr.dtype.names)} "
+                f"and shape {arr.shape}"
+            )
+        return np.column_stack([np.asarray(arr[a], np.float64) for a in "xyz"])
+    if arr.dtype.kind not in "fiu":
+        raise DataError(f"{path}: expected numeric point coordinates, got dtype {arr.dtype}")
+    if arr.ndim == 2 and arr.shape[1] > 3 and arr.shape[0] > 3:
+        log.info("%s: %d columns per point: x, y, z taken from the first three", path, arr.shape[1])
+        return arr[:, :3]
+    if arr.ndim == 2 and arr.shape[0] == 3 and arr.shape[1] > 3:
+        raise DataError(f"{path}: shape {arr.shape} looks like x, y, z rows: save the transpose, (N, 3)")
+    return _check(path, arr)
+
+
+def _npz_points(path: Path) -> np.ndarray:
+    """The point array of a non-Ouster ``.npz``: its only array, or the one named as in
+    :data:`NPZ_POINT_KEYS`."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            keys = list(z.files)
+            key = keys[0] if len(keys) == 1 else next((k for k in NPZ_POINT_KEYS if k in keys), None)
+            if key is None:
+                raise DataError(
+                    f"{path}: which array holds the points? It has {keys}; name it one of {', '.join(NPZ_POINT_KEYS)}"
+                )
+            return z[key]
+    except DataError:
+        raise
+    except (ValueError, OSError) as e:
+        raise DataError(f"{path}: not a readable .npz archive ({e})") from e
 
 
 def _open3d_points(path: Path) -> np.ndarray:
@@ -131,8 +192,8 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
     if not path.is_file():
         raise DataError(f"{path}: no such file")
     suffix = path.suffix.lower()
-    if suffix not in CLOUD_SUFFIXES:
-        raise DataError(f"{path}: unknown cloud format {suffix!r}; use one of {', '.join(CLOUD_SUFFIXES)}")
+    if suffix not in (*CLOUD_SUFFIXES, ".npz"):
+        raise DataError(f"{path}: unknown cloud format {suffix!r}; use one of {', '.join(CLOUD_SUFFIXES)}, .npz")
     if suffix in (".las", ".laz"):
         import laspy
 
@@ -161,12 +222,15 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
         if seen != expected:
             raise DataError(f"{path}: header announces {expected} points, file holds {seen} (truncated?)")
         return
-    if suffix == ".npy":
+    if suffix in (".npy", ".npz"):
         try:
-            xyz = _check(path, np.load(path, mmap_mode="r"))
+            arr = _npz_points(path) if suffix == ".npz" else np.load(path, mmap_mode="r", allow_pickle=False)
+        except DataError:
+            raise
         except ValueError as e:
             raise DataError(f"{path}: not a readable .npy array ({e})") from e
-        stored = xyz.dtype
+        xyz = _array_xyz(path, arr)
+        stored = max((arr.dtype[a] for a in "xyz"), key=lambda d: d.itemsize) if arr.dtype.names else xyz.dtype
     elif suffix == ".pcd":  # our reader: any field type and layout, one-line errors
         from data_tools.pcd import read_sweep_fields
 
