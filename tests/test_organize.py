@@ -573,7 +573,7 @@ def test_points_in_a_tilted_frame_are_organised_about_the_spin_axis(deg, towards
     from prc_slam.scan import sensor_from_description  # the mount survives a description
 
     again = sensor_from_description(turned.sensor.describe())
-    np.testing.assert_allclose(again.directions(), turned.sensor.directions(), atol=1e-8)
+    np.testing.assert_allclose(again.directions(), turned.sensor.directions(), atol=1e-6)  # (9 decimals)
 
 
 def test_a_level_sweep_is_left_about_z():
