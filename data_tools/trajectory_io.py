@@ -19,7 +19,78 @@ def read_kitti_poses(path: str | Path) -> np.ndarray:
     data = read_numeric_table(path, 12, "KITTI poses: 12 values per line, a row-major 3x4 matrix")
     poses = np.tile(np.eye(4), (len(data), 1, 1))
     poses[:, :3, :] = data.reshape(-1, 3, 4)
+    check_rotations(path, poses)
     return poses
+
+
+#: a pose's 3x3 block may differ from a rotation (R R^T = I, det R = 1) by this much (rounding)
+ROTATION_TOLERANCE = 1e-2
+
+
+def check_rotations(path: str | Path, poses: np.ndarray) -> None:
+    """Raise :class:`DataError` naming the first pose (data row) whose rotation block is not a
+    rotation: a scaled, sheared or mirrored block (a similarity from monocular SLAM, columns in
+    another order) would place every point of the sweep silently wrong."""
+    rot = np.asarray(poses, np.float64)[:, :3, :3]
+    if not len(rot):
+        return
+    err = np.abs(rot @ np.swapaxes(rot, 1, 2) - np.eye(3)).max(axis=(1, 2))
+    bad = (err > ROTATION_TOLERANCE) | (np.linalg.det(rot) < 0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DataError(
+            f"{path}: pose {i + 1} (data row): its 3x3 block is not a rotation (|R R^T - I| = {err[i]:.3g}, "
+            f"det {np.linalg.det(rot[i]):.3g}); expected KITTI poses (row-major [R | t])"
+        )
+
+
+#: frame times and TUM pose times that differ by less than this (s) are the same instant
+TUM_TIME_TOLERANCE = 0.005
+
+
+def read_pose_file(path: str | Path, times: np.ndarray | None = None) -> np.ndarray:
+    """Poses ``(n, 4, 4)`` for the frames at ``times`` from a KITTI file (12 values per line:
+    one pose per frame, in order) or a TUM file (8: ``t x y z qx qy qz qw``).
+
+    A TUM file's poses are matched to the frames by time when every frame time has a pose within
+    :data:`TUM_TIME_TOLERANCE` (a trajectory of some of the frames, or of more); otherwise, when it
+    holds one pose per frame, in order (a warning says the times did not match: another clock);
+    otherwise a :class:`DataError`."""
+    path = Path(path)
+    head = read_numeric_table(path, None, "KITTI (12 values per line) or TUM (8) poses")
+    width = head.shape[1] if head.ndim == 2 and len(head) else 12
+    if width == 12:
+        return read_kitti_poses(path)
+    if width != 8:
+        raise DataError(f"{path}: {width} values per line: expected KITTI poses (12 per line) or TUM poses (8)")
+    stamps, poses = read_tum_poses(path)
+    if times is None or not len(times):
+        return poses
+    times = np.asarray(times, np.float64)
+    order = np.argsort(stamps, kind="stable")
+    j = np.clip(np.searchsorted(stamps[order], times), 1, max(len(stamps) - 1, 1))
+    near = np.where(
+        np.abs(stamps[order][j - 1] - times) <= np.abs(stamps[order][np.minimum(j, len(stamps) - 1)] - times),
+        j - 1,
+        np.minimum(j, len(stamps) - 1),
+    )
+    if len(stamps) and (np.abs(stamps[order][near] - times) <= TUM_TIME_TOLERANCE).all():
+        return poses[order][near]
+    if len(poses) >= len(times):
+        log.warning(
+            "%s: the TUM times (%.3f..%.3f s) are not the frame times (%.3f..%.3f s): poses taken in file order, "
+            "one per frame",
+            path,
+            stamps.min(),
+            stamps.max(),
+            times.min(),
+            times.max(),
+        )
+        return poses
+    raise DataError(
+        f"{path}: {len(poses)} TUM poses for {len(times)} frames, at times not the frames' ({stamps.min():.3f}.."
+        f"{stamps.max():.3f} s against {times.min():.3f}..{times.max():.3f} s)"
+    )
 
 
 def read_times(path: str | Path) -> np.ndarray:
@@ -141,6 +212,17 @@ def read_tum_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Times ``(n,)`` and poses ``(n, 4, 4)`` of a TUM file."""
     data = read_numeric_table(path, 8, "TUM poses (t x y z qx qy qz qw)")
     poses = np.tile(np.eye(4), (len(data), 1, 1))
+    norms = np.linalg.norm(data[:, 4:8], axis=1) if len(data) else np.ones(0)
+    if (norms < 1e-6).any():
+        raise DataError(f"{path}: pose {int(np.argmax(norms < 1e-6)) + 1} (data row): zero quaternion")
+    if (np.abs(norms - 1) > ROTATION_TOLERANCE).any():
+        log.warning(
+            "%s: %d quaternions are not unit (norm %.3g..%.3g): normalised",
+            path,
+            int((np.abs(norms - 1) > ROTATION_TOLERANCE).sum()),
+            norms.min(),
+            norms.max(),
+        )
     if len(data):
         poses[:, :3, :3] = _matrix_from_quat(data[:, 4:8])
         poses[:, :3, 3] = data[:, 1:4]
@@ -148,7 +230,9 @@ def read_tum_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 __all__ = [
+    "check_rotations",
     "read_kitti_poses",
+    "read_pose_file",
     "read_times",
     "read_tum_poses",
     "warn_time_gaps",

@@ -104,7 +104,7 @@ def mapclass(
     fmt: str | None = FORMAT_OPT,
     max_frames: int | None = MAX_FRAMES_OPT,
     every: int = typer.Option(1, min=1, help="sequence: accumulate every n-th frame"),
-    poses: Path | None = typer.Option(None, help="sequence: poses (KITTI format) instead of ground truth"),
+    poses: Path | None = typer.Option(None, help="sequence: poses (KITTI or TUM file) instead of ground truth"),
     rrd: Path | None = RRD_OPT,
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,

@@ -25,21 +25,23 @@ def map_from_dataset(
     """Accumulate every ``every``-th of the first ``n`` frames at the given poses (an array, a
     KITTI pose file, or None for the sequence's ground truth), carrying reference labels and
     instances when present and PRC labels for the frames in ``prc``."""
-    from data_tools.kitti import read_kitti_poses
+    from data_tools.trajectory_io import read_pose_file
     from prc_slam.mapclass import accumulate
 
     source = "ground truth" if poses is None else str(poses) if isinstance(poses, Path) else "the estimate"
+    times = getattr(dataset, "times", None)
     if isinstance(poses, Path):
-        poses = read_kitti_poses(poses)
+        poses = read_pose_file(poses, None if times is None else np.asarray(times, dtype=float)[:n])
     elif poses is None:
         poses = getattr(dataset, "poses", None)
     if poses is None:
-        raise ValueError("--poses: the input has no ground-truth poses; give a KITTI pose file")
+        raise ValueError("--poses: the input has no ground-truth poses; give a pose file (KITTI or TUM)")
     if len(poses) < n:
         raise ValueError(f"{source}: {len(poses)} poses for {n} frames")
     if source not in ("ground truth", "the estimate"):
+        if len(poses) > n:
+            log.warning("%s: %d poses for %d frames: the first %d are used, in order", source, len(poses), n, n)
         warn_unless_z_up(np.asarray(poses)[:n], source)
-    times = getattr(dataset, "times", None)
     times = np.arange(n) * 0.1 if times is None else np.asarray(times, dtype=float)
 
     def frames():
