@@ -132,6 +132,8 @@ class ClassSplitWriter:
         self._writers: dict[str, laspy.LasWriter] = {}
         self._header: laspy.LasHeader | None = None
         self.counts: dict[str, int] = {}
+        #: points without finite coordinates (no return), which LAS cannot store: not written
+        self.skipped = 0
 
     def __enter__(self) -> ClassSplitWriter:
         self.out_dir.mkdir(parents=True, exist_ok=True)
@@ -166,6 +168,7 @@ class ClassSplitWriter:
         if xyz.ndim != 2 or xyz.shape[1] != 3 or codes.shape != (len(xyz),):
             raise DataError(f"{self.out_dir}: {codes.shape} codes for points of shape {xyz.shape}")
         ok = np.isfinite(xyz).all(axis=1)  # non-finite points carry no_return and no coordinates
+        self.skipped += int(len(ok) - np.count_nonzero(ok))
         xyz, codes = xyz[ok], codes[ok]
         if len(xyz) == 0:
             return

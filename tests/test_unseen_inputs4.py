@@ -272,3 +272,47 @@ def test_mapclass_takes_tum_poses_like_kitti_poses_and_warns_of_extra_poses(tmp_
         c = map_from_dataset(seq, 4, 1, tmp_path / "more.kitti")
     np.testing.assert_allclose(a.points, c.points, atol=1e-6)
     assert "more.kitti: 9 poses for 4 frames: the first 4 are used" in caplog.text
+
+
+# ------------------------------------------------------------------ degenerate map clouds
+
+
+@pytest.mark.parametrize(
+    ("name", "xyz", "needle"),
+    [
+        ("nan.npy", np.full((50, 3), np.nan), "no point has finite coordinates"),
+        ("same.npy", np.tile([3.0, 4.0, 1.0], (80, 1)), "all 80 points lie at one position (3, 4, 1)"),
+        ("same.las", np.tile([3.0, 4.0, 1.0], (80, 1)), "all 80 points lie at one position (3, 4, 1)"),
+        ("one.las", np.array([[3.0, 4.0, 1.0]]), "a single point (3, 4, 1)"),
+    ],
+)
+def test_a_cloud_without_spread_is_a_one_line_error(tmp_path, name, xyz, needle):
+    """Before: 80 copies of one point came out as 80 'ground' points, and a cloud of NaNs 'wrote'
+    a map_classified.las that was never written (LAS cannot store a point without coordinates)."""
+    from data_tools.errors import DataError
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    path = tmp_path / name
+    write_las(path, xyz) if name.endswith(".las") else np.save(path, xyz)
+    with pytest.raises(DataError) as err:
+        mapclass_job(path, Config(), tmp_path / "out")
+    assert needle in str(err.value) and name in str(err.value)
+
+
+def test_points_without_coordinates_are_counted_as_not_written(tmp_path):
+    """An organised cloud's NaN slots get no_return and cannot be stored in LAS: the metrics (and
+    the CLI) say how many points the LAS files lack."""
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    xyz, _ = block_scene(1500)
+    holes = np.arange(len(xyz)) % 4 == 0
+    xyz[holes] = np.nan
+    np.save(tmp_path / "holes.npy", xyz)
+    metrics = mapclass_job(tmp_path / "holes.npy", Config(), tmp_path / "out")
+    assert metrics["points"] == len(xyz) and metrics["counts"]["no_return"] == int(holes.sum())
+    assert metrics["points_not_written"] == int(holes.sum())
+    out = laspy.read(metrics["files"]["all"])
+    assert len(out) == int((~holes).sum())
+    np.testing.assert_allclose(np.column_stack([out.x, out.y, out.z]), xyz[~holes], atol=5e-4)

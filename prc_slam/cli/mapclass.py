@@ -58,6 +58,12 @@ def print_mapclass(metrics: dict[str, Any], title: str) -> None:
     )
     console.print("stages (s): " + ", ".join(f"{k} {v:.2f}" for k, v in metrics["seconds_per_stage"].items()))
     console.print("points per class: " + ", ".join(f"{k} {v:,}" for k, v in metrics["counts"].items()))
+    if metrics.get("points_not_written"):
+        console.print(
+            f"{metrics['points_not_written']:,} points without finite coordinates (no_return) are not in the LAS "
+            f"files, which hold the other {metrics['points'] - metrics['points_not_written']:,} in input order",
+            highlight=False,
+        )
     if "per_class" in metrics:
         print_table(class_table(metrics, title))
         if "scored_points" in metrics:  # a map of frames of which only some carry reference labels

@@ -167,6 +167,7 @@ def classify_map(
         labels = np.array(labels) if reference is not None or prc is not None else None
         del store
     metrics["files"] = {k: str(v) for k, v in writer.paths.items()}
+    metrics["points_not_written"] = writer.skipped  # no finite coordinates: LAS cannot store them
     if reference is not None:
         metrics.update(
             score_map(
@@ -180,6 +181,31 @@ def classify_map(
         if prc_known is not None:
             metrics["prc_vs_map"]["points"] = int(np.count_nonzero(prc_known))
     return metrics
+
+
+def check_spread(path: Path, chunks: Iterator[np.ndarray], count: int | None = None) -> None:
+    """Raise :class:`~data_tools.errors.DataError` for a cloud with no point of finite coordinates
+    or whose points all lie at one position: there is nothing to classify (before, such a cloud
+    came out 'ground' or wrote no file while saying it had). ``count``: the number of points, when
+    ``chunks`` are only their bounds (a LAS header's)."""
+    from data_tools.errors import DataError
+
+    lo, hi, seen = np.full(3, np.inf), np.full(3, -np.inf), 0
+    for chunk in chunks:
+        good = chunk[np.isfinite(chunk).all(axis=1)]
+        if len(good):
+            lo, hi = np.minimum(lo, good.min(axis=0)), np.maximum(hi, good.max(axis=0))
+            seen += len(good)
+    if not seen:
+        raise DataError(f"{path}: no point has finite coordinates: nothing to classify")
+    seen = seen if count is None else count
+    if np.array_equal(lo, hi):
+        where = f"({lo[0]:g}, {lo[1]:g}, {lo[2]:g})"
+        raise DataError(
+            f"{path}: "
+            + (f"a single point {where}" if seen == 1 else f"all {seen:,} points lie at one position {where}")
+            + ": nothing to classify"
+        )
 
 
 def mapclass_job(
@@ -207,6 +233,7 @@ def mapclass_job(
     (``reference=None``: when it has them; True: required; False: never)."""
     from data_tools.clouds import cloud_chunks, cloud_classes, cloud_crs, cloud_grid, cloud_size, is_cloud_file
     from data_tools.errors import DataError
+    from data_tools.laz import laz_backend
     from prc_slam.jobs.common import open_input
     from prc_slam.mapclass.tiles import array_chunks
 
@@ -219,6 +246,13 @@ def mapclass_job(
         size = cloud_size(input)
         if size == 0:
             raise DataError(f"{input}: the cloud holds no points")
+        if input.suffix.lower() in (".las", ".laz"):  # LAS stores finite coordinates and their bounds
+            import laspy
+
+            with laspy.open(input, laz_backend=laz_backend(input)) as f:
+                check_spread(input, iter([np.array([f.header.mins, f.header.maxs])]), size)
+        else:
+            check_spread(input, cloud_chunks(input))
         metrics = classify_map(
             lambda: cloud_chunks(input), size, cfg, out, tile, margin, ref, inst, viewer=viewer,
             reporter=reporter, laz=laz, tiler=tiler, crs=cloud_crs(input), grid=cloud_grid(input),
