@@ -1,5 +1,5 @@
 """Point-cloud files for map classification: LAS/LAZ (streamed in chunks with laspy; LAZ through
-the ``lazrs`` backend), PCD (:mod:`data_tools.pcd`), PLY (Open3D), NPY (an ``(N, 3)`` array,
+the ``lazrs`` backend), PCD and PLY (:mod:`data_tools.pcd`), NPY (an ``(N, 3)`` array,
 memory-mapped; ``(N, k > 3)``: x, y, z are the first three columns; a structured array: its
 ``x``, ``y``, ``z`` fields), NPZ (such an array, alone or named ``points`` / ``xyz``; an Ouster
 sweep ``.npz`` is a sequence, not a cloud).
@@ -66,22 +66,6 @@ def warn_coarse_storage(path: Path, dtype: np.dtype, lo: np.ndarray, hi: np.ndar
             largest,
             step,
         )
-
-
-def _ply_coordinate_dtype(path: Path) -> np.dtype:
-    """The widest type of the vertex x/y/z properties in a PLY header (float64 when unknown)."""
-    head = path.read_bytes()[:65536]
-    end = head.find(b"end_header")
-    types = {"float": np.float32, "float32": np.float32, "double": np.float64, "float64": np.float64}
-    found = []
-    element = None
-    for line in head[: max(end, 0)].decode("ascii", errors="replace").splitlines():
-        parts = line.split()
-        if len(parts) >= 2 and parts[0] == "element":
-            element = parts[1]
-        elif len(parts) == 3 and parts[0] == "property" and element == "vertex" and parts[2] in ("x", "y", "z"):
-            found.append(np.dtype(types.get(parts[1], np.float64)))
-    return max(found, key=lambda d: d.itemsize) if found else np.dtype(np.float64)
 
 
 #: arrays an ``.npz`` cloud may name its points by (one array alone needs no name)
@@ -153,17 +137,27 @@ def _npz_points(path: Path) -> np.ndarray:
         raise DataError(f"{path}: not a readable .npz archive ({e})") from e
 
 
-def _open3d_points(path: Path) -> np.ndarray:
-    import open3d as o3d
-
-    cloud = o3d.io.read_point_cloud(str(path))
-    xyz = np.asarray(cloud.points, dtype=np.float64)
-    if len(xyz) == 0 and path.stat().st_size > 0:
-        # Open3D prints a warning and returns an empty cloud for unreadable files
-        head = path.read_bytes()[:64]
-        if not (head.startswith(b"ply") or head.lstrip().startswith((b"#", b"VERSION", b"FIELDS"))):
-            raise DataError(f"{path}: not a readable {path.suffix[1:].upper()} file")
-    return xyz
+def check_record_count(path: Path, header) -> None:
+    """Raise :class:`DataError` when an uncompressed LAS file holds whole point records beyond the
+    count its header announces (up to its EVLRs or its end): laspy reads the announced count
+    only, and the points after it were lost without a word; or fewer (a cut file: laspy's
+    'buffer size must be a multiple of element size' did not say so)."""
+    if header.are_points_compressed:
+        return
+    size = path.stat().st_size
+    record = int(header.point_format.size)
+    end = int(header.offset_to_point_data) + int(header.point_count) * record
+    if end > size:
+        held = max(size - int(header.offset_to_point_data), 0) // record if record else 0
+        raise DataError(f"{path}: header announces {int(header.point_count)} points, file holds {held} (truncated?)")
+    limit = int(getattr(header, "start_of_first_evlr", 0) or 0)
+    limit = limit if end <= limit <= size else size
+    extra = (limit - end) // record if record else 0
+    if extra >= 1:
+        raise DataError(
+            f"{path}: header announces {int(header.point_count)} points, the file holds {extra} more point records "
+            "after them (a header count not updated by the writer?)"
+        )
 
 
 def cloud_size(path: str | Path) -> int:
@@ -176,7 +170,10 @@ def cloud_size(path: str | Path) -> int:
         backend = laz_backend(path)
         try:
             with laspy.open(path, laz_backend=backend) as f:
+                check_record_count(path, f.header)
                 return int(f.header.point_count)
+        except DataError:
+            raise
         except (laspy.LaspyException, ValueError, OSError, RuntimeError) as e:  # lazrs errors are RuntimeErrors
             raise DataError(f"{path}: not a readable LAS file ({e})") from e
     return sum(len(c) for c in cloud_chunks(path))
@@ -185,8 +182,8 @@ def cloud_size(path: str | Path) -> int:
 def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarray]:
     """The cloud's coordinates as ``float64 (n, 3)`` chunks, in file order.
 
-    LAS/LAZ and NPY files are read chunk by chunk (NPY memory-mapped); PCD (our reader) and PLY
-    (Open3D) are read whole and then cut.
+    LAS/LAZ and NPY files are read chunk by chunk (NPY memory-mapped); PCD and PLY (our readers)
+    are read whole and then cut.
     """
     path = Path(path)
     if not path.is_file():
@@ -201,6 +198,7 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
         try:
             with laspy.open(path, laz_backend=backend) as f:
                 expected = int(f.header.point_count)
+                check_record_count(path, f.header)
                 if expected:
                     check_metric(path, f.header.mins, f.header.maxs)
                     scale = float(np.max(f.header.scales))
@@ -237,9 +235,15 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
         fields = read_sweep_fields(path)[0]
         stored = max((fields[a].dtype for a in "xyz"), key=lambda d: d.itemsize)
         xyz = np.column_stack([fields["x"], fields["y"], fields["z"]])
-    else:
-        xyz = _check(path, _open3d_points(path))
-        stored = _ply_coordinate_dtype(path) if suffix == ".ply" else xyz.dtype
+    else:  # PLY: our reader (ascii or binary, either endianness; truncation and missing x/y/z said)
+        from data_tools.pcd import read_ply
+
+        fields = read_ply(path)
+        missing = [a for a in "xyz" if a not in fields]
+        if missing:
+            raise DataError(f"{path}: the PLY vertices have no {', '.join(missing)} (properties {list(fields)})")
+        stored = max((fields[a].dtype for a in "xyz"), key=lambda d: d.itemsize)
+        xyz = np.column_stack([np.asarray(fields[a], np.float64) for a in "xyz"])
     if len(xyz):
         finite = np.isfinite(xyz).all(axis=1)
         if finite.any():
@@ -297,9 +301,13 @@ def cloud_classes(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.n
         return None
     import laspy
 
-    laz_backend(path)
+    backend = laz_backend(path)
     try:
-        las = laspy.read(path)
+        with laspy.open(path, laz_backend=backend) as f:
+            check_record_count(path, f.header)
+        las = laspy.read(path, laz_backend=backend)
+    except DataError:
+        raise
     except (laspy.LaspyException, ValueError, OSError, RuntimeError) as exc:  # lazrs errors are RuntimeErrors
         raise DataError(f"{path}: not a readable LAS file ({exc})") from exc
     codes = np.asarray(las.classification, np.uint8)

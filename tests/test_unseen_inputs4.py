@@ -316,3 +316,92 @@ def test_points_without_coordinates_are_counted_as_not_written(tmp_path):
     out = laspy.read(metrics["files"]["all"])
     assert len(out) == int((~holes).sum())
     np.testing.assert_allclose(np.column_stack([out.x, out.y, out.z]), xyz[~holes], atol=5e-4)
+
+
+# ------------------------------------------------------------------ PLY map clouds, LAS record counts
+
+
+def _ply(path: Path, xyz: np.ndarray, fmt: str, *, extra: bool = True, faces: bool = True) -> Path:
+    """A PLY of float32 x, y, z (with normals, an RGBA colour and two triangles when asked)."""
+    order = {"binary_little_endian": "<", "binary_big_endian": ">", "ascii": "<"}[fmt]
+    props = [("x", "f4"), ("y", "f4"), ("z", "f4")]
+    if extra:
+        props += [("nx", "f4"), ("ny", "f4"), ("nz", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    rec = np.zeros(len(xyz), [(k, order + t) for k, t in props])
+    rec["x"], rec["y"], rec["z"] = xyz.T
+    if extra:
+        rec["nz"], rec["red"] = 1.0, 200
+    names = {"f4": "float", "u1": "uchar"}
+    head = f"ply\nformat {fmt} 1.0\ncomment h31\nelement vertex {len(xyz)}\n"
+    head += "".join(f"property {names[t]} {k}\n" for k, t in props)
+    head += "element face 2\nproperty list uchar int vertex_indices\n" if faces else ""
+    head += "end_header\n"
+    with path.open("wb") as f:
+        f.write(head.encode())
+        if fmt == "ascii":
+            f.write("".join(" ".join(repr(v.item()) for v in r) + "\n" for r in rec).encode())
+            f.write(b"3 0 1 2\n3 1 2 3\n" if faces else b"")
+        else:
+            f.write(rec.tobytes())
+            if faces:
+                tri = np.zeros(2, [("n", "u1"), ("i", order + "i4", (3,))])
+                tri["n"], tri["i"] = 3, [[0, 1, 2], [1, 2, 3]]
+                f.write(tri.tobytes())
+    return path
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian", "binary_big_endian"])
+def test_ply_map_clouds_are_read_exactly_and_cut_ones_are_errors(tmp_path, fmt):
+    """Before (Open3D): a PLY cut in half was read as the whole vertex count, the missing half
+    filled with zeros ('RPly: Error reading ...' on stderr, 10,000 points classified); a cut ascii
+    PLY could end in a SystemError traceback; a PLY without y and z was read as points on a line."""
+    from data_tools.clouds import cloud_chunks
+    from data_tools.errors import DataError
+
+    xyz, _ = block_scene(400)
+    xyz = xyz.astype(np.float32).astype(np.float64)
+    path = _ply(tmp_path / "map.ply", xyz, fmt)
+    np.testing.assert_array_equal(np.concatenate(list(cloud_chunks(path))), xyz)
+    raw = path.read_bytes()
+    (tmp_path / "cut.ply").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(DataError, match="truncated"):
+        list(cloud_chunks(tmp_path / "cut.ply"))
+    (tmp_path / "x.ply").write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nend_header\n" + bytes(40)
+    )
+    with pytest.raises(DataError, match="have no y, z"):
+        list(cloud_chunks(tmp_path / "x.ply"))
+
+
+def _patch_count(path: Path, count: int) -> Path:
+    """Overwrite a LAS 1.4 header's point counts (legacy, at byte 107, and 64-bit, at 247)."""
+    import struct
+
+    raw = bytearray(path.read_bytes())
+    struct.pack_into("<I", raw, 107, count)
+    struct.pack_into("<Q", raw, 247, count)
+    path.write_bytes(bytes(raw))
+    return path
+
+
+def test_las_records_beyond_the_header_count_are_an_error(tmp_path):
+    """Before: a header announcing 1,000 of 3,000 records classified 1,000 points and dropped the
+    rest without a word; a cut file said laspy's 'buffer size must be a multiple of element size'."""
+    from data_tools.clouds import cloud_chunks, cloud_classes, cloud_size
+    from data_tools.errors import DataError
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    xyz, classes = block_scene(2400)
+    full = write_las(tmp_path / "full.las", xyz, classes)
+    assert cloud_size(full) == len(xyz)  # a correct file passes the check
+    short = tmp_path / "short.las"
+    short.write_bytes(full.read_bytes())
+    _patch_count(short, 1000)
+    for call in (cloud_size, lambda p: list(cloud_chunks(p)), cloud_classes):
+        with pytest.raises(DataError, match=f"header announces 1000 points, the file holds {len(xyz) - 1000} more"):
+            call(short)
+    cut = write_las(tmp_path / "cut.las", xyz, classes)
+    cut.write_bytes(cut.read_bytes()[:-4500])
+    with pytest.raises(DataError, match=r"header announces 3200 points, file holds \d+ \(truncated\?\)"):
+        mapclass_job(cut, Config(), tmp_path / "out")
