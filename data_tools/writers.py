@@ -137,7 +137,24 @@ class ClassSplitWriter:
 
     def __enter__(self) -> ClassSplitWriter:
         self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.remove_earlier()
         return self
+
+    def remove_earlier(self) -> list[Path]:
+        """Delete the files an earlier split into the same folder wrote (combined and per class,
+        LAS or LAZ): a class this run does not find kept its old file, and the folder said that
+        class was there. Returns the files removed."""
+        stems = {Path(self.combined_name).stem, *L.CODE_TO_NAME.values()}
+        old = [
+            f
+            for f in self.out_dir.iterdir()
+            if f.is_file()
+            and f.suffix.lower() in (".las", ".laz")
+            and (f.stem in stems or (f.stem.startswith("code_") and f.stem[5:].isdigit()))
+        ]
+        for f in old:
+            f.unlink()
+        return old
 
     def __exit__(self, *exc: object) -> None:
         for w in self._writers.values():

@@ -405,3 +405,26 @@ def test_las_records_beyond_the_header_count_are_an_error(tmp_path):
     cut.write_bytes(cut.read_bytes()[:-4500])
     with pytest.raises(DataError, match=r"header announces 3200 points, file holds \d+ \(truncated\?\)"):
         mapclass_job(cut, Config(), tmp_path / "out")
+
+
+def test_a_second_run_into_the_same_folder_leaves_no_class_files_of_the_first(tmp_path):
+    """Before: classifying a building tile and then a bare field into the same ``--out`` left the
+    first run's ``building.las`` (and its ``.las`` files beside a later ``--laz`` run's): the folder
+    said the field had buildings. Files that are not ours stay."""
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    xyz, classes = block_scene(3000)
+    write_las(tmp_path / "tile.las", xyz, classes)
+    rng = np.random.default_rng(5)
+    field = np.column_stack([rng.uniform(0, 40, 4000), rng.uniform(0, 40, 4000), rng.normal(0, 0.02, 4000)])
+    np.save(tmp_path / "field.npy", field)
+    out = tmp_path / "out"
+    first = mapclass_job(tmp_path / "tile.las", Config(), out)
+    assert "building" in first["files"]
+    (out / "notes.las").write_bytes(b"mine")
+    second = mapclass_job(tmp_path / "field.npy", Config(), out, laz=True)
+    assert "building" not in second["files"]
+    assert sorted(f.name for f in out.iterdir() if f.is_file()) == sorted(
+        [Path(p).name for p in second["files"].values()] + ["notes.las"]
+    )
