@@ -114,6 +114,38 @@ def classify_job(
     return metrics, _written(viewer, las, outputs)
 
 
+class OneClassWatch:
+    """Pipeline sink warning (once per run) when the online detectors put nearly every return of
+    a frame in one class (:func:`prc_slam.pipeline.one_class`), as PRC's own check does: a map
+    tile or aerial cloud given to ``detect`` came out 100 % 'vertical' without a word. Counts the
+    frames (``frames_one_class``)."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+
+    def frame(self, step) -> None:
+        from prc_slam.pipeline import one_class
+
+        res = step.online
+        if res is None or res.labels is None:
+            return
+        one = one_class(res.labels, step.scan.ranges)
+        if one is None:
+            return
+        self.frames += 1
+        if self.frames == 1:
+            log.warning(
+                "%s: the online detectors put %.1f%% of the returns in one class (%s): is this a sweep of a "
+                "spinning sensor (not a map or an aerial tile: use mapclass), in metres?",
+                step.scan.source,
+                one[1],
+                one[0],
+            )
+
+    def close(self, result) -> None:
+        pass
+
+
 def detect_job(
     input: Path,
     *,
@@ -134,8 +166,10 @@ def detect_job(
     scorer = OnlineScorer()
     sinks, las = _file_sinks(outputs, "online")
     detector = OnlineDetector.paper() if paper else OnlineDetector()
-    pipe = Pipeline(online=detector, sinks=[scorer, *sinks])
+    watch = OneClassWatch()
+    pipe = Pipeline(online=detector, sinks=[scorer, watch, *sinks])
     result = _run(pipe, dataset, n, viewer, reporter, "online detectors", outputs)
     metrics = scorer.metrics(result)
+    metrics["frames_one_class"] = watch.frames
     metrics["input"] = str(input)
     return metrics, _written(viewer, las, outputs)
