@@ -479,3 +479,17 @@ def test_detect_on_real_sweeps_is_not_warned_of_one_class(caplog):
         metrics, _ = detect_job(path)
     assert metrics["frames_one_class"] == 0 and "one class" not in caplog.text
     assert metrics["points"] == open_dataset(path)[0].n_points
+
+
+def test_a_folder_of_las_tiles_given_to_mapclass_says_to_give_one_cloud(tmp_path):
+    """Before: 'unknown input format (expected a simulated sequence with sim.json, ...)'."""
+    from data_tools.errors import DataError
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    xyz, classes = block_scene(300)
+    (tmp_path / "tiles").mkdir()
+    write_las(tmp_path / "tiles" / "a.las", xyz, classes)
+    write_las(tmp_path / "tiles" / "b.las", xyz + 50, classes)
+    with pytest.raises(DataError, match="a folder of 2 LAS/LAZ files: mapclass classifies one cloud file"):
+        mapclass_job(tmp_path / "tiles", Config(), tmp_path / "out")

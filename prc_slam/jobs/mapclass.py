@@ -267,6 +267,14 @@ def mapclass_job(
                 + (f" ({skipped:,} withheld points not scored)" if skipped else "")
             )
     else:
+        if input.is_dir() and fmt is None:
+            suffixes = [f.suffix.lower() for f in input.iterdir() if f.is_file()]
+            tiles = sorted(f for f in input.iterdir() if f.is_file() and f.suffix.lower() in (".las", ".laz"))
+            if tiles and not any(x in suffixes for x in (".pcd", ".ply", ".bin", ".npz")):
+                raise DataError(
+                    f"{input}: a folder of {len(tiles)} LAS/LAZ files: mapclass classifies one cloud file; give "
+                    f"the tiles one at a time (e.g. {tiles[0]}) or merged into one"
+                )
         dataset, n = open_input(input, fmt, max_frames, **open_options)
         cloud = map_from_dataset(dataset, n, every, poses)
         if note is not None:
