@@ -493,3 +493,17 @@ def test_a_folder_of_las_tiles_given_to_mapclass_says_to_give_one_cloud(tmp_path
     write_las(tmp_path / "tiles" / "b.las", xyz + 50, classes)
     with pytest.raises(DataError, match="a folder of 2 LAS/LAZ files: mapclass classifies one cloud file"):
         mapclass_job(tmp_path / "tiles", Config(), tmp_path / "out")
+
+
+def test_an_unknown_file_given_to_mapclass_lists_the_cloud_formats(tmp_path):
+    """Before: the message listed the sequence formats only (sim.json, velodyne/, pcap, bags), not
+    the PLY / NPY / NPZ clouds mapclass reads."""
+    from data_tools.errors import DataError
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    (tmp_path / "cloud.xyz").write_text("x y z\n1 2 3\n")
+    with pytest.raises(
+        DataError, match=r"cloud.xyz: unknown cloud format '.xyz': mapclass reads one cloud file \(.las"
+    ):
+        mapclass_job(tmp_path / "cloud.xyz", Config(), tmp_path / "out")

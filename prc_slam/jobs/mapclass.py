@@ -267,6 +267,19 @@ def mapclass_job(
                 + (f" ({skipped:,} withheld points not scored)" if skipped else "")
             )
     else:
+        if input.is_file() and fmt is None:
+            from data_tools.clouds import CLOUD_SUFFIXES
+            from data_tools.datasets import detect_format
+
+            try:
+                detect_format(input)
+            except DataError as exc:
+                if "unknown input format" not in str(exc):
+                    raise
+                raise DataError(
+                    f"{input}: unknown cloud format {input.suffix!r}: mapclass reads one cloud file "
+                    f"({', '.join(CLOUD_SUFFIXES)}, .npz) or a sequence of sweeps (as classify does)"
+                ) from exc
         if input.is_dir() and fmt is None:
             suffixes = [f.suffix.lower() for f in input.iterdir() if f.is_file()]
             tiles = sorted(f for f in input.iterdir() if f.is_file() and f.suffix.lower() in (".las", ".laz"))
