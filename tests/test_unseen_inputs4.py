@@ -507,3 +507,19 @@ def test_an_unknown_file_given_to_mapclass_lists_the_cloud_formats(tmp_path):
         DataError, match=r"cloud.xyz: unknown cloud format '.xyz': mapclass reads one cloud file \(.las"
     ):
         mapclass_job(tmp_path / "cloud.xyz", Config(), tmp_path / "out")
+
+
+def test_reference_classes_without_a_map_class_are_warned_with_their_counts(tmp_path, caplog):
+    """Before: ASPRS water (9), bridge deck (17) or a producer's own class 40 in a tile's
+    classification were scored without a word (each such point a false positive of the class it
+    is given); standard classes with a counterpart (2, 3-6, 11, 20) are not warned of."""
+    import logging
+
+    from prc_slam.jobs.mapclass import warn_unscored_reference
+
+    ref = np.array([2] * 10 + [9] * 3 + [17] * 2 + [40] + [3, 4, 5, 6, 11, 20, 18, 7, 1, 0], np.uint8)
+    with caplog.at_level(logging.WARNING, logger="prc_slam.mapclass"):
+        assert warn_unscored_reference(Path("t.las"), ref) == [9, 17, 40]
+        assert warn_unscored_reference(Path("u.las"), np.delete(ref, np.isin(ref, (9, 17, 40)).nonzero())) == []
+    assert caplog.text.count("no class for") == 1
+    assert "9 (water: 3 points), 17 (bridge deck: 2 points), 40 (user or reserved: 1 points)" in caplog.text

@@ -183,6 +183,46 @@ def classify_map(
     return metrics
 
 
+#: ASPRS classes of a tile's own classification (LAS 1.4 R15, Table 17) that paper 004's classes
+#: have no counterpart for, by name
+ASPRS_OTHER = {
+    8: "model key-point",
+    9: "water",
+    10: "rail",
+    12: "overlap",
+    13: "wire guard",
+    14: "wire conductor",
+    15: "transmission tower",
+    16: "wire connector",
+    17: "bridge deck",
+    19: "overhead structure",
+    21: "snow",
+    22: "temporal exclusion",
+}
+
+
+def warn_unscored_reference(path: Path, reference: np.ndarray) -> list[int]:
+    """Warn, with their counts, of the classes in a LAS file's own classification that map
+    classification has no class for (ASPRS water, rail, wires, bridge deck, ...; user codes):
+    every such point counts against the precision of the class it is given. Codes 64 and up are
+    this package's (trunk, vehicle, curb, pole, ...) and are taken as such: in another producer's
+    file they are user classes that mean something else. Returns the codes warned of."""
+    from prc_slam import labels as L
+    from prc_slam.mapclass_run import MAP_REFERENCE
+
+    counts = np.bincount(np.asarray(reference, np.uint8), minlength=256)
+    known = {L.NO_RETURN, L.UNCLASSIFIED, *MAP_REFERENCE, *MAP_REFERENCE.values(), *L.CODE_TO_NAME}
+    other = [int(c) for c in np.flatnonzero(counts) if int(c) not in known]
+    if other:
+        log.warning(
+            "%s: its own classes include %s, which map classification has no class for: those points count "
+            "against the precision of the class each is given",
+            path,
+            ", ".join(f"{c} ({ASPRS_OTHER.get(c, 'user or reserved')}: {counts[c]:,} points)" for c in other),
+        )
+    return other
+
+
 def check_spread(path: Path, chunks: Iterator[np.ndarray], count: int | None = None) -> None:
     """Raise :class:`~data_tools.errors.DataError` for a cloud with no point of finite coordinates
     or whose points all lie at one position: there is nothing to classify (before, such a cloud
@@ -243,6 +283,8 @@ def mapclass_job(
         if reference and own is None:
             raise ValueError(f"--reference: {input} carries no classes to score against")
         ref, inst, scored = own if own is not None else (None, None, None)
+        if ref is not None:
+            warn_unscored_reference(input, ref if scored is None else ref[scored])
         size = cloud_size(input)
         if size == 0:
             raise DataError(f"{input}: the cloud holds no points")
