@@ -187,7 +187,7 @@ def _atan2(y, x):
 
 
 @njit(cache=True, nogil=True)
-def _polar(xyz, offset, ok, rng, az, te, cloud, rot, rotate, small=0.7853981633974483):
+def _polar(xyz, offset, ok, rng, az, te, cloud, small=0.7853981633974483):
     """Per point: has a return (finite, not at the origin, nearer than :data:`MAX_RANGE`), range,
     azimuth (rad, (-pi, pi]) and the tangent of the beam
     elevation ``z / (rho - offset)``, ``offset`` being the horizontal distance of the beam
@@ -196,8 +196,7 @@ def _polar(xyz, offset, ok, rng, az, te, cloud, rot, rotate, small=0.78539816339
     steps between consecutive returns smaller than ``small`` and the signed sum of those
     steps (revolutions * 2 pi), which tell the point order. Writes into ``ok, rng, az, te``
     (work arrays reused from sweep to sweep: fresh ones cost page faults) and copies the
-    points into ``cloud`` (float32, no-return rows zeroed). With ``rotate``, azimuth and elevation
-    are those of ``rot @ p`` (the spin frame); ``cloud`` keeps the points."""
+    points into ``cloud`` (float32, no-return rows zeroed)."""
     n = xyz.shape[0]
     prev = 0.0
     have = False
@@ -224,13 +223,6 @@ def _polar(xyz, offset, ok, rng, az, te, cloud, rot, rotate, small=0.78539816339
             az[i] = 0.0
             te[i] = 0.0
             continue
-        if rotate:
-            x, y, z = (
-                rot[0, 0] * x + rot[0, 1] * y + rot[0, 2] * z,
-                rot[1, 0] * x + rot[1, 1] * y + rot[1, 2] * z,
-                rot[2, 0] * x + rot[2, 1] * y + rot[2, 2] * z,
-            )
-            rho2 = x * x + y * y
         rho = math.sqrt(rho2)
         rng[i] = math.sqrt(r2)
         a = _atan2(y, x)
@@ -812,9 +804,6 @@ def estimate_beam_offset(
     return best if scores_f[:-1].max() > 1.05 * scores_f[-1] else 0.0
 
 
-#: the rotation :func:`_polar` is given when the points are in the spin frame (not applied)
-_NO_ROTATION = np.eye(3)
-
 #: 0.005 deg bins over [-90, 90] deg (the elevation histogram of the beam-offset search)
 ELEVATION_BINS = 36000
 
@@ -1181,9 +1170,12 @@ class Organizer:
             self._work("az", n, np.float32),
             self._work("te", n, np.float32),
         )
-        rotate = self.rotation is not None
-        rot = self.rotation if rotate else _NO_ROTATION
-        self._order = _polar(xyz, self.beam_offset, ok, rng, az, te, cloud, rot, rotate)
+        if self.rotation is None:
+            self._order = _polar(xyz, self.beam_offset, ok, rng, az, te, cloud)
+        else:  # azimuths and elevations in the spin frame; Scan.cloud keeps the points as given
+            spun = np.asarray(xyz, np.float64) @ self.rotation.T
+            self._order = _polar(spun, self.beam_offset, ok, rng, az, te, cloud)
+            cloud[ok] = xyz[ok]
         n_ok = int(ok.sum())
         if n_ok == 0:
             what = f"no point with a return ({n} points, all NaN/inf, at the origin or beyond 100 km)"
@@ -1261,7 +1253,7 @@ class Organizer:
         n_all = len(src)
         ok, rng, az, te = (np.empty(n_all, bool), np.empty(n_all, np.float32), np.empty(n_all), np.empty(n_all))
         flat = np.empty((n_all, 3), np.float32)
-        _polar(src, 0.0, ok, rng, az, te, flat, _NO_ROTATION, False)
+        _polar(src, 0.0, ok, rng, az, te, flat)
         if not ok.any():
             raise DataError(f"{source}: no point with a return in the {H} x {W} organised cloud")
         warnings: list[str] = []
