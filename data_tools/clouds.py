@@ -302,19 +302,32 @@ def cloud_classes(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.n
     import laspy
 
     backend = laz_backend(path)
-    try:
+    try:  # chunk by chunk, the three dimensions only (laspy.read held every dimension of every point)
         with laspy.open(path, laz_backend=backend) as f:
             check_record_count(path, f.header)
-        las = laspy.read(path, laz_backend=backend)
+            n = int(f.header.point_count)
+            names = set(f.header.point_format.dimension_names)
+            codes = np.zeros(n, np.uint8)
+            inst = np.zeros(n, np.uint32) if "instance" in names else None
+            withheld = np.zeros(n, bool) if "withheld" in names else None
+            start = 0
+            for pts in f.chunk_iterator(2_000_000):
+                stop = start + len(pts)
+                if stop > n:
+                    raise DataError(f"{path}: header announces {n} points, the file holds more")
+                codes[start:stop] = np.asarray(pts.classification)
+                if inst is not None:
+                    inst[start:stop] = np.asarray(pts["instance"])
+                if withheld is not None:
+                    withheld[start:stop] = np.asarray(pts.withheld, bool)
+                start = stop
     except DataError:
         raise
     except (laspy.LaspyException, ValueError, OSError, RuntimeError) as exc:  # lazrs errors are RuntimeErrors
         raise DataError(f"{path}: not a readable LAS file ({exc})") from exc
-    codes = np.asarray(las.classification, np.uint8)
+    if start != n:
+        raise DataError(f"{path}: header announces {n} points, file holds {start} (truncated?)")
     if not np.isin(codes, (0, 1), invert=True).any():
         return None
-    names = set(las.point_format.dimension_names)
-    inst = np.asarray(las["instance"], np.uint32) if "instance" in names else None
-    withheld = np.asarray(las.withheld, bool) if "withheld" in names else None
     scored = None if withheld is None or not withheld.any() else ~withheld
     return codes, inst, scored

@@ -523,3 +523,26 @@ def test_reference_classes_without_a_map_class_are_warned_with_their_counts(tmp_
         assert warn_unscored_reference(Path("u.las"), np.delete(ref, np.isin(ref, (9, 17, 40)).nonzero())) == []
     assert caplog.text.count("no class for") == 1
     assert "9 (water: 3 points), 17 (bridge deck: 2 points), 40 (user or reserved: 1 points)" in caplog.text
+
+
+def test_a_tiles_own_classes_and_instances_are_read_chunk_by_chunk(tmp_path, monkeypatch):
+    """``cloud_classes`` reads classification, instance and withheld chunk by chunk (laspy.read
+    held every dimension of every point: 30-40 bytes a point for a tile scored against itself);
+    the result is that of reading the whole file, over several chunks."""
+    import data_tools.clouds as clouds
+
+    xyz, classes = block_scene(900)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.add_extra_dim(laspy.ExtraBytesParams("instance", np.uint32))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = xyz.T
+    las.classification = classes
+    las.instance = np.arange(len(xyz), dtype=np.uint32) * 7
+    las.withheld = np.arange(len(xyz)) % 3 == 0
+    las.write(tmp_path / "tile.laz")
+    real = laspy.LasReader.chunk_iterator
+    monkeypatch.setattr(laspy.LasReader, "chunk_iterator", lambda self, size: real(self, 250))
+    codes, inst, scored = clouds.cloud_classes(tmp_path / "tile.laz")
+    np.testing.assert_array_equal(codes, classes)
+    np.testing.assert_array_equal(inst, np.arange(len(xyz)) * 7)
+    np.testing.assert_array_equal(scored, np.arange(len(xyz)) % 3 != 0)
