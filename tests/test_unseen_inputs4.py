@@ -546,3 +546,22 @@ def test_a_tiles_own_classes_and_instances_are_read_chunk_by_chunk(tmp_path, mon
     np.testing.assert_array_equal(codes, classes)
     np.testing.assert_array_equal(inst, np.arange(len(xyz)) * 7)
     np.testing.assert_array_equal(scored, np.arange(len(xyz)) % 3 != 0)
+
+
+def test_sequence_options_given_with_one_cloud_file_are_an_error(tmp_path):
+    """Before: ``mapclass map.las --poses p.txt --every 3`` classified the cloud and ignored both."""
+    from typer.testing import CliRunner
+
+    from prc_slam.cli import app
+
+    xyz, classes = block_scene(300)
+    write_las(tmp_path / "map.las", xyz, classes)
+    out = str(tmp_path / "out")
+    cases = [
+        (["--poses", str(tmp_path / "p.txt"), "--every", "3"], "--poses, --every: for a sequence of sweeps"),
+        (["--rows", "64"], "--rows: for a sequence of sweeps"),
+    ]
+    for args, needle in cases:
+        res = CliRunner().invoke(app, ["mapclass", str(tmp_path / "map.las"), "--out", out, *args])
+        assert res.exit_code != 0 and needle in res.output and "map.las is one cloud" in res.output, res.output
+        assert not (tmp_path / "out" / "map_classified.las").exists()

@@ -118,13 +118,17 @@ def mapclass(
 ) -> None:
     """Classify a registered map after registration (paper 004) and segregate it into
     per-class LAS files; scored against reference labels when a sequence has them."""
+    from data_tools.clouds import is_cloud_file
     from prc_slam.config import Config
     from prc_slam.jobs.common import Viewer, write_json
-    from prc_slam.jobs.mapclass import mapclass_job
+    from prc_slam.jobs.mapclass import mapclass_job, refuse_sequence_options
     from prc_slam.jobs.progress import progress
     from prc_slam.mapclass import paper_config
 
     check_outputs(out=(out, "dir"), json_path=(json_path, "file"), rrd=(rrd, "file"))
+    options = input_options(topic, meta, model, rows, cols, organize=organize)
+    if is_cloud_file(input):
+        refuse_sequence_options(input, poses, max_frames, every, **options)
     cfg = Config.from_yaml(config) if config is not None else Config()
     if paper:
         cfg.mapclass = paper_config().model_copy(update={"normals": cfg.mapclass.normals})
@@ -144,7 +148,7 @@ def mapclass(
         metrics = mapclass_job(
             input, cfg, out, tile=tile, margin=margin, fmt=fmt, max_frames=max_frames, every=every, poses=poses,
             viewer=viewer, reporter=reporter, note=say, laz=laz, reference=reference, tiler=tiler,
-            **input_options(topic, meta, model, rows, cols, organize=organize),
+            **options,
         )  # fmt: skip
     print_mapclass(metrics, f"map classification of {input}")
     written = [out / ("map_classified.laz" if laz else "map_classified.las")]

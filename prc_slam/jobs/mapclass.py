@@ -248,6 +248,22 @@ def check_spread(path: Path, chunks: Iterator[np.ndarray], count: int | None = N
         )
 
 
+def refuse_sequence_options(input: Path, poses, max_frames, every: int, **open_options: Any) -> None:
+    """Raise :class:`~data_tools.errors.DataError` when options that only a sequence takes
+    (``--poses``, ``--every``, ``--max-frames``, the readers' options) are given with one cloud
+    file: ``mapclass map.las --poses p.txt --every 3`` classified the cloud and ignored them. (The
+    CLI calls this; a batch applies its options to every input, clouds and sequences alike.)"""
+    from data_tools.errors import DataError
+
+    given = {"--poses": poses, "--max-frames": max_frames, "--every": every if every != 1 else None}
+    given.update({"--" + k.replace("_method", "").replace("_", "-"): v for k, v in open_options.items()})
+    named = [k for k, v in given.items() if v is not None]
+    if named:
+        raise DataError(
+            f"{', '.join(named)}: for a sequence of sweeps; {input} is one cloud, classified as it is stored"
+        )
+
+
 def mapclass_job(
     input: Path,
     cfg: Config,
