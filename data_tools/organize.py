@@ -75,6 +75,10 @@ TWO_PI = 2.0 * np.pi
 #: cut in two), against one row further along the first sweep's ring order
 RING_REUSE_COST = 0.5
 
+#: columns per turn above which an estimate is refused (the finest spinning sensors: 0.05 deg, 7,200
+#: a turn; a map tile's points, steps of micro-degrees seen from a corner, gave 360,391 and 16 s)
+MAX_COLUMNS = 16384
+
 #: share of points sharing a slot above which a sweep is reported (warning) / refused (error)
 WARN_COLLISIONS = 0.12
 MAX_COLLISIONS = 0.5
@@ -1598,7 +1602,14 @@ class Organizer:
         # steps near the lower quartile (a sparse ring's median would skip firings)
         q = float(np.percentile(steps, 25))
         step = float(np.median(steps[steps < 1.5 * q]))
-        self.cols = max(1, round(TWO_PI / step))
+        cols = round(TWO_PI / step) if step > 0 else MAX_COLUMNS + 1
+        if cols > MAX_COLUMNS:
+            raise DataError(
+                f"{source}: cannot organise: the azimuth steps along the rings ({np.degrees(step):.4f} deg) would give "
+                f"{cols} columns per turn, more than any spinning sensor ({MAX_COLUMNS}): not a sweep seen from its "
+                "sensor (a map tile, a cloud in a world frame?); give --cols if it is one"
+            )
+        self.cols = max(1, cols)
         return self.cols
 
     # ------------------------------------------------------------------ checks and the Scan
