@@ -1164,8 +1164,7 @@ class Organizer:
             ring = None
         cloud = np.empty((n, 3), np.float32)  # Scan.cloud, filled by _polar (no-return rows zeroed)
         if self._find_axis:
-            self._find_axis = False
-            self._spin_axis(xyz, source, warnings)
+            self._find_axis = not self._spin_axis(xyz, source, warnings)
         if self.beam_offset is None:
             self.beam_offset = 0.0 if ring is not None else estimate_beam_offset(xyz, rotation=self.rotation)
         ok, rng, az, te = (
@@ -1213,9 +1212,12 @@ class Organizer:
         scan.meta["organize_span"] = (t_start, t_end)  # perf_counter interval (overlap credit, pipeline.NextFrame)
         return scan
 
-    def _spin_axis(self, xyz: np.ndarray, source: str, warnings: list[str]) -> None:
-        """Set :attr:`rotation` from the first sweep when its spin axis is clearly off ``z``
-        (:data:`SPIN_AXIS_MIN_TILT_DEG`, :data:`SPIN_AXIS_MIN_GAIN`), and say so."""
+    def _spin_axis(self, xyz: np.ndarray, source: str, warnings: list[str]) -> bool:
+        """Set :attr:`rotation` from the first sweep with 1,000 finite points when its spin axis is
+        clearly off ``z`` (:data:`SPIN_AXIS_MIN_TILT_DEG`, :data:`SPIN_AXIS_MIN_GAIN`), and say so;
+        whether the sweep decided it (False: too few points, the next sweep decides)."""
+        if int(np.isfinite(xyz).all(axis=1).sum()) < 1000:
+            return False
         axis, tilt, gain = estimate_spin_axis(xyz)
         if np.isnan(tilt):
             warnings.append(
@@ -1223,9 +1225,9 @@ class Organizer:
                 "points' z axis (a sensor mounted on its side?): organised about z, which may fail; give the points "
                 "in the sensor's frame"
             )
-            return
+            return True
         if tilt < SPIN_AXIS_MIN_TILT_DEG or gain < SPIN_AXIS_MIN_GAIN:
-            return
+            return True
         self.rotation = levelling_rotation(axis)
         self.spin_tilt_deg = tilt
         ax, ay, az_ = axis
@@ -1233,6 +1235,7 @@ class Organizer:
             f"{source}: the sensor spun about ({ax:.3f}, {ay:.3f}, {az_:.3f}), {tilt:.1f} deg from the points' z axis "
             "(points in a vehicle or tilted frame?): organised about the spin axis (the points are not moved)"
         )
+        return True
 
     def scan_organized(
         self,

@@ -659,3 +659,15 @@ def test_a_map_tile_is_not_taken_for_a_sweep():
     tile = np.column_stack([g, np.random.default_rng(1).normal(0.0, 0.02, 30000)]).astype(np.float32)
     with pytest.raises(DataError, match="columns per turn, more than any spinning sensor"):
         Organizer().scan(tile, source="tile")
+
+
+def test_the_spin_axis_is_found_on_the_first_sweep_with_points():
+    """A first sweep without returns (skipped) does not settle the spin axis: the next one does."""
+    xyz = spinning_sweep(rings=16, cols=720, keep=0.8, seed=5, del_=1.0)[0]
+    tilted, _ = tilt(xyz, 5.0, 10.0)
+    org = Organizer()
+    with pytest.raises(DataError, match="no point with a return"):
+        org.scan(np.full((2000, 3), np.nan, np.float32))
+    scan = org.scan(tilted)
+    assert org.spin_tilt_deg == pytest.approx(5.0, abs=0.1)
+    assert any("from the points' z axis" in w for w in scan.meta["organize"]["warnings"])
