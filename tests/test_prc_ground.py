@@ -304,3 +304,18 @@ def test_pipeline_warns_once_about_a_sweep_turned_over():
     warned.clear()
     Pipeline(prc=PRCConfig.preset("multibeam"), warn=warned.append).run(iter(upright))
     assert not any("upside down" in w for w in warned), warned
+
+
+def test_a_sweep_without_a_return_leaves_the_ground_state_alone():
+    """An empty sweep mid-stream (an empty message, a blocked sensor): every slot no return, and
+    the column ground neither fails nor forgets the plane it carries (it warned, unnamed, that it
+    reused it)."""
+    r, sensor, _ = _plane_sweep(3.0)
+    state = G.GroundState()
+    cfg = PRCConfig.preset("multibeam")
+    prc_block(r, cfg, sensor=sensor, wrap=True, ground_state=state)
+    plane = state.plane.copy()
+    res = prc_block(np.zeros_like(r), cfg, sensor=sensor, wrap=True, ground_state=state)
+    assert (res.labels == L.NO_RETURN).all() and not res.supported.any()
+    np.testing.assert_array_equal(state.plane, plane)
+    assert state.reused == 0

@@ -281,6 +281,12 @@ def prc_block(
     """
     ranges = np.ascontiguousarray(ranges, dtype=np.float32)
     carry = state is not None
+    if not carry and not ranges.any():  # a sweep without a return (said by the pipeline): nothing to do
+        none = np.zeros(ranges.shape, bool)
+        return BlockResult(
+            labels=np.full(ranges.shape, L.NO_RETURN, np.uint8), segments=np.zeros(ranges.shape, np.int32),
+            supported=none, smooth=none.copy(), one_sided=none.copy(), row0=row0,
+        )  # fmt: skip
     state = state if state is not None else PRCState()
     # Step 2: support, eqs. (4)-(8); step 3b: background extension, eq. (9).
     supported, grad, one_sided = support_and_background(ranges, config, sensor, wrap)
