@@ -16,6 +16,7 @@ the same with any thread count (``NUMBA_NUM_THREADS=1``: everything in the calli
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from dataclasses import dataclass, field
 
@@ -47,6 +48,8 @@ from prc_slam.threads import side_by_side
 #: they are: levelled, their ground F1 rises 0.72 -> 0.85 but vehicle precision falls 0.87 -> 0.77
 #: (more hedges taken for cars), under issue 18's 0.80
 LEVEL_MIN_TILT_DEG = 2.2
+
+log = logging.getLogger("prc_slam.online")
 
 
 @dataclass
@@ -143,7 +146,15 @@ class OnlineDetector:
         try:
             plane, _ = ground_plane(xyz, valid, beam_order(xyz, valid, scan.sensor.altitude))
             if self.levelled is None:
-                self.levelled = bool(np.degrees(np.arccos(np.clip(plane[2], -1.0, 1.0))) > LEVEL_MIN_TILT_DEG)
+                tilt = float(np.degrees(np.arccos(np.clip(plane[2], -1.0, 1.0))))
+                self.levelled = tilt > LEVEL_MIN_TILT_DEG
+                if self.levelled:
+                    log.warning(
+                        "%s: the ground tilts %.1f deg from the points' z axis (a tilted mount or frame?): the online "
+                        "detectors level every sweep on its ground plane",
+                        scan.source,
+                        tilt,
+                    )
             if self.levelled:
                 self.levelling = levelling_rotation(plane[:3])
         except GroundModelError:
