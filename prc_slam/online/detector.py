@@ -48,6 +48,10 @@ from prc_slam.threads import side_by_side
 #: they are: levelled, their ground F1 rises 0.72 -> 0.85 but vehicle precision falls 0.87 -> 0.77
 #: (more hedges taken for cars), under issue 18's 0.80
 LEVEL_MIN_TILT_DEG = 2.2
+#: ... and whose sensor is at least this high above that plane (m): a plane a few centimetres below
+#: the sensor is the bench it stands on (the shared Hesai/Velodyne sample sweeps: 5-7 cm, tilted
+#: 3-9 deg), not the ground the detectors measure heights from
+LEVEL_MIN_HEIGHT_M = 0.3
 
 log = logging.getLogger("prc_slam.online")
 
@@ -134,12 +138,12 @@ class OnlineDetector:
         rotation; or the sweep as it is and None when the stream is not levelled. Beyond the
         paper, whose detectors take the sensor's z as up. The first sweep with a ground plane
         below the sensor (PRC's column ground's :func:`~prc_slam.prc.ground.ground_plane`)
-        decides for the stream: levelled when it tilts more than :data:`LEVEL_MIN_TILT_DEG`
-        (decided once: the ground height the detectors carry from sweep to sweep must not switch
-        frames). A levelled stream takes every sweep's own plane (a vehicle pitches on slopes), or
-        the last one when a sweep has none. Labels are per slot and need no turning back; car boxes
-        and curb polylines are turned back by :meth:`process` (a box stays upright in the levelled
-        frame)."""
+        decides for the stream: levelled when it tilts more than :data:`LEVEL_MIN_TILT_DEG` with
+        the sensor :data:`LEVEL_MIN_HEIGHT_M` or more above it (decided once: the ground height
+        the detectors carry from sweep to sweep must not switch frames). A levelled stream takes
+        every sweep's own plane (a vehicle pitches on slopes), or the last one when a sweep has
+        none. Labels are per slot and need no turning back; car boxes and curb polylines are
+        turned back by :meth:`process` (a box stays upright in the levelled frame)."""
         if self.levelled is False:
             return scan, None
         xyz, valid = scan.slot_xyz(), scan.ranges > 0
@@ -147,7 +151,7 @@ class OnlineDetector:
             plane, _ = ground_plane(xyz, valid, beam_order(xyz, valid, scan.sensor.altitude))
             if self.levelled is None:
                 tilt = float(np.degrees(np.arccos(np.clip(plane[2], -1.0, 1.0))))
-                self.levelled = tilt > LEVEL_MIN_TILT_DEG
+                self.levelled = tilt > LEVEL_MIN_TILT_DEG and float(plane[3]) >= LEVEL_MIN_HEIGHT_M
                 if self.levelled:
                     log.warning(
                         "%s: the ground tilts %.1f deg from the points' z axis (a tilted mount or frame?): the online "
