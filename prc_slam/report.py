@@ -167,24 +167,34 @@ def plot_trajectories(result: CompareResult, path: Path) -> None:
 
 def write_compare_outputs(
     result: CompareResult, config: Config, out: Path, title: str, pose_writer, tum_writer
-) -> dict[str, Any]:
-    """Write trajectories, metrics.json, config.yaml, report.md and trajectories.png into ``out``.
+) -> tuple[dict[str, Any], list[Path]]:
+    """Write trajectories, frames.txt, metrics.json, config.yaml, report.md and trajectories.png
+    into ``out``; the metrics and the paths written.
 
-    ``pose_writer(path, poses)`` and ``tum_writer(path, times, poses)`` are injected (data_tools)."""
+    The KITTI-format trajectories have one line per registered frame and no times: ``frames.txt``
+    gives the time and input frame of each line. ``pose_writer(path, poses)`` and
+    ``tum_writer(path, times, poses)`` are injected (data_tools)."""
     out.mkdir(parents=True, exist_ok=True)
     metrics = result.metrics()
-    for name in result.runs:
-        poses = result.estimate_in_world(name)
-        pose_writer(out / f"{name}_poses_kitti.txt", poses)
-        tum_writer(out / f"{name}_poses_tum.txt", result.times[: len(poses)], poses)
+    tracks = {name: (result.estimate_in_world(name), result.times) for name in result.runs}
     if result.gt_poses is not None:
-        pose_writer(out / "ground_truth_poses_kitti.txt", result.gt_poses)
-        tum_writer(out / "ground_truth_poses_tum.txt", result.times, result.gt_poses)
+        tracks["ground_truth"] = (result.gt_poses, result.times)
+    written = []
+    for name, (poses, times) in tracks.items():
+        pose_writer(out / f"{name}_poses_kitti.txt", poses)
+        tum_writer(out / f"{name}_poses_tum.txt", times[: len(poses)], poses)  # a failed variant's stop early
+        written += [out / f"{name}_poses_kitti.txt", out / f"{name}_poses_tum.txt"]
+    lines = zip(result.names, result.times, strict=True)
+    (out / "frames.txt").write_text(
+        "# line of the *_poses_kitti.txt files, time (s), input frame\n"
+        + "".join(f"{i} {t:.9f} {name}\n" for i, (name, t) in enumerate(lines))
+    )
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     config.to_yaml(out / "config.yaml")
     (out / "report.md").write_text(markdown_report(result, metrics, title))
     plot_trajectories(result, out / "trajectories.png")
-    return metrics
+    files = ("report.md", "metrics.json", "trajectories.png", "config.yaml", "frames.txt")
+    return metrics, [out / n for n in files] + written
 
 
 def mapclass_section(mc: dict[str, Any]) -> str:

@@ -145,19 +145,11 @@ def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> li
     from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
     from prc_slam.report import classification_section, write_compare_outputs
 
-    metrics = write_compare_outputs(run.result, config, out, title, write_kitti_poses, write_tum_poses)
+    metrics, written = write_compare_outputs(run.result, config, out, title, write_kitti_poses, write_tum_poses)
     extra = {k: v for k, v in run.metrics.items() if k != "variants"}
     if extra:
         metrics.update(extra)
         write_json(out / "metrics.json", metrics)
-    # the KITTI-format files have one line per registered frame and no times: which frame each is
-    frames_txt = out / "frames.txt"
-    frames_txt.write_text(
-        "# line of the *_poses_kitti.txt files, time (s), input frame\n"
-        + "".join(
-            f"{i} {t:.9f} {name}\n" for i, (name, t) in enumerate(zip(run.result.names, run.result.times, strict=True))
-        )
-    )
     with (out / "report.md").open("a") as f:
         f.write("\n![trajectories](trajectories.png)\n")
         skips = run.metrics.get("skips") or []
@@ -174,9 +166,7 @@ def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> li
         if run.online is not None:
             f.write(classification_section(run.online, "Online detectors against the reference"))
     run.metrics = metrics
-    names = [*run.result.runs, *(["ground_truth"] if run.result.gt_poses is not None else [])]
-    poses = [out / f"{name}_poses_{fmt}.txt" for name in names for fmt in ("kitti", "tum")]
-    return [out / "report.md", out / "metrics.json", out / "trajectories.png", out / "config.yaml", frames_txt, *poses]
+    return written
 
 
 def trajectory_file(run: OdometryRun, name: str, path: Path, pose_format: str = "kitti") -> Path:
