@@ -46,11 +46,12 @@ def detect_format(path: str | Path) -> str:
         return "rosbag"
     elif path.suffix.lower() in (".pcap", ".pcapng"):
         from data_tools.ouster_pcap import find_metadata
-        from data_tools.velodyne_pcap import check_capture, looks_like_velodyne
+        from data_tools.velodyne_pcap import check_capture, check_not_hesai, looks_like_velodyne
 
         check_capture(path)  # an empty or foreign file says so (not "no Ouster metadata")
         if looks_like_velodyne(path):
             return "velodyne-pcap"
+        check_not_hesai(path)
         find_metadata(path)  # a pcap without its json: one-line error naming the file
         return "ouster-pcap"
     elif path.suffix.lower() in SWEEP_SUFFIXES:

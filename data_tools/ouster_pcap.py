@@ -3,7 +3,8 @@
 This is the sensor's true raw stream: the SDK's low-level packet source and frame batcher turn
 the UDP lidar packets (any packet profile the SDK knows: legacy, single/dual return, low
 data rate ``RNG15_RFL8_NIR8``, ...) into organised ``LidarFrame`` images in measurement order
-(staggered), with per-column timestamps and status. Each frame becomes the same Scan
+(staggered), with per-column timestamps and status. Of a dual-return profile the first (strongest)
+return is read, with a warning (``field="RANGE2"`` reads the second). Each frame becomes the same Scan
 :func:`data_tools.ouster.ouster_scan` builds from a decoded ``.npz`` (ranges, reflectivity,
 column times, beam intrinsics, ``pixel_shift_by_row``), with Cartesian coordinates from the
 SDK's own lookup table (``XYZLut``) expressed in the *lidar* frame, as in ``xyz_lidar_m``.
@@ -46,7 +47,8 @@ def find_metadata(pcap: str | Path, meta: str | Path | None = None) -> Path:
     if prefixed:
         return max(prefixed, key=lambda j: len(j.stem))
     raise DataError(
-        f"{pcap}: no Ouster sensor metadata: expected {exact.name} beside it (or give the json with --meta PATH)"
+        f"{pcap}: no Velodyne data packets and no Ouster sensor metadata: expected {exact.name} beside it (or give "
+        f"the json with --meta PATH); {udp_traffic(pcap)}"
     )
 
 
@@ -115,6 +117,9 @@ class OusterPcapSequence(SequenceBase):
         self.name = path.stem
         self.destaggered = destaggered
         self.field = field
+        from data_tools.velodyne_pcap import check_not_hesai
+
+        check_not_hesai(path)  # (not "no Ouster metadata" or "no lidar packets matching")
         self.meta_path = find_metadata(path, meta)
         self.info = load_sensor_info(self.meta_path, path)
         from ouster.sdk import core
@@ -125,6 +130,13 @@ class OusterPcapSequence(SequenceBase):
         if field not in fields:
             raise DataError(
                 f"{path}: packet profile {self.info.format.udp_profile_lidar} has no {field} channel (has {fields})"
+            )
+        if field == "RANGE" and "RANGE2" in fields:
+            log.warning(
+                "%s: packet profile %s holds two returns per pixel; the range image takes the first (strongest) "
+                "only, the second returns (RANGE2) are not read",
+                path,
+                self.info.format.udp_profile_lidar,
             )
         self.poses = None
         self._index()
@@ -153,11 +165,16 @@ class OusterPcapSequence(SequenceBase):
         t0: list[float] = []
         last = None
         ordinal = -1
+        top = -1  # the largest measurement id of a valid column
         src = self._source()
         try:
             for ordinal, (_, p) in enumerate(src):
                 if not isinstance(p, core.LidarPacket):
                     continue
+                valid = (np.asarray(self._format.packet_header(core.ColHeader.STATUS, p.buf)) & 1) != 0
+                if valid.any():
+                    mid = np.asarray(self._format.packet_header(core.ColHeader.MEASUREMENT_ID, p.buf))
+                    top = max(top, int(mid[valid].max()))
                 fid = p.frame_id()
                 if fid != last:
                     starts.append(ordinal)
@@ -185,6 +202,7 @@ class OusterPcapSequence(SequenceBase):
                 f"(profile {self.info.format.udp_profile_lidar}, {self._format.lidar_packet_size} bytes per packet, "
                 f"udp_port_lidar {self.info.config.udp_port_lidar}){extra}; {udp_traffic(self.root)}"
             )
+        self._check_columns(top, len(starts))
         self.n_items = ordinal + 1
         self._starts = np.asarray(starts, dtype=np.int64)
         self._ends = np.asarray(ends, dtype=np.int64)
@@ -200,6 +218,36 @@ class OusterPcapSequence(SequenceBase):
                 id_errors,
             )
         self.files = [self.root] * len(starts)
+
+    def _in_window(self) -> np.ndarray:
+        """bool (columns_per_frame,): the measurement ids inside the metadata's column window."""
+        lo, hi = self.info.format.column_window
+        inside = np.zeros(self.info.format.columns_per_frame, bool)
+        if lo <= hi:
+            inside[lo : hi + 1] = True
+        else:  # the window wraps around measurement id 0
+            inside[lo:] = True
+            inside[: hi + 1] = True
+        return inside
+
+    def _check_columns(self, top: int, frames: int) -> None:
+        """The capture's measurement ids against the metadata's lidar mode: packets of a wider mode
+        (ids beyond ``columns_per_frame``) would lose their columns, those of a narrower one (every
+        sweep of several ending at half the columns or less) would be placed at the wrong azimuths.
+
+        Raises
+        ------
+        DataError
+            Naming the largest measurement id found and the metadata's lidar mode.
+        """
+        cols = int(self.info.format.columns_per_frame)
+        narrower = frames > 1 and 0 <= top < cols // 2 and self._in_window()[top + 1 :].any()
+        if top >= cols or narrower:
+            raise DataError(
+                f"{self.root}: its lidar packets carry measurement ids 0..{top} (a {top + 1}-column sweep), "
+                f"but {self.meta_path.name} says lidar_mode {self.info.config.lidar_mode} ({cols} columns): "
+                "the metadata is not this capture's (give its own json with --meta)"
+            )
 
     def __len__(self) -> int:
         return len(self._starts)
@@ -245,14 +293,7 @@ class OusterPcapSequence(SequenceBase):
         src = f"{self.root}#frame {i} (id {int(self.frame_ids[i])})"
         rng = np.asarray(lf.field(self.field))
         valid = (np.asarray(lf.status) & 1) != 0
-        lo, hi = self.info.format.column_window
-        in_window = np.zeros(lf.w, bool)
-        if lo <= hi:
-            in_window[lo : hi + 1] = True
-        else:  # the window wraps around measurement id 0
-            in_window[lo:] = True
-            in_window[: hi + 1] = True
-        missing = int((in_window & ~valid).sum())
+        missing = int((self._in_window() & ~valid).sum())
         if missing:
             log.warning("%s: %d of %d columns missing (dropped packets or partial sweep)", src, missing, lf.w)
         refl = "REFLECTIVITY2" if self.field == "RANGE2" else "REFLECTIVITY"

@@ -2,7 +2,9 @@
 
 Read with ``rosbags`` (pure Python, no ROS installation). One cloud topic is read per sequence:
 detected when the recording holds exactly one ``PointCloud2`` topic, chosen with ``topic=``
-otherwise (the error lists the candidates).
+otherwise (the error lists the candidates). ROS 1 chunks may be bz2 / lz4 compressed, rosbag2
+messages or files zstd compressed: a compressed rosbag2 storage file given alone is read through
+its folder's ``metadata.yaml`` (which alone says it is compressed).
 
 Decoding honours ``point_step``, ``row_step``, every field's offset, datatype and count, and
 ``is_bigendian``: the message data is viewed through a numpy structured dtype built from the
@@ -62,6 +64,10 @@ TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 ABSOLUTE_TIME_S = 1e6
 #: Point times further than this (s) from the header stamp at both ends of a sweep are on another clock.
 CLOCK_MISMATCH_S = 1.0
+#: Suffixes of rosbag2 storage files compressed whole (``ros2 bag record --compression-mode file``).
+COMPRESSED_SUFFIXES = (".db3.zstd", ".mcap.zstd")
+#: First bytes of a zstd frame (a message of a message-compressed rosbag2 read without its metadata).
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 
 
 @dataclass(frozen=True)
@@ -449,8 +455,9 @@ def cloud_to_scan(
 def bag_kind(path: str | Path) -> str | None:
     """``ros1``, ``ros2`` or ``mcap`` when ``path`` looks like a recording, else None.
 
-    A ``.bag`` file (or a folder of split ``.bag`` files) is ROS 1; a ``.db3`` file, a folder
-    holding ``metadata.yaml`` or a ``.db3`` is ROS 2; a ``.mcap`` file is MCAP.
+    A ``.bag`` file (or a folder of split ``.bag`` files) is ROS 1; a ``.db3`` file (``.db3.zstd``,
+    ``.mcap.zstd``: compressed whole), a folder holding ``metadata.yaml`` or a ``.db3`` is ROS 2; a
+    ``.mcap`` file is MCAP.
     """
     path = Path(path)
     if path.is_dir():
@@ -463,7 +470,7 @@ def bag_kind(path: str | Path) -> str | None:
         if any(path.glob("*.mcap")):
             return "mcap"
         return None
-    if path.name == "metadata.yaml":
+    if path.name == "metadata.yaml" or path.name.lower().endswith(COMPRESSED_SUFFIXES):
         return "ros2"
     return {".bag": "ros1", ".db3": "ros2", ".mcap": "mcap"}.get(path.suffix.lower())
 
@@ -492,10 +499,43 @@ def velodyne_scan_topics(path: Path) -> list[str]:
         return []
 
 
+def _compressed_bag_folder(path: Path) -> Path | None:
+    """The rosbag2 folder of the storage file ``path`` when its ``metadata.yaml`` lists the file
+    and says its messages or the file are compressed (readable only through the folder), else None."""
+    meta = path.parent / "metadata.yaml"
+    if not meta.is_file():
+        return None
+    try:
+        import yaml
+
+        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        listed = {Path(str(p)).name for p in info.get("relative_file_paths") or []}
+        compressed = str(info.get("compression_mode") or "none").lower() not in ("", "none")
+    except Exception:  # not a rosbag2 metadata file: the storage file is read alone
+        return None
+    return path.parent if compressed and path.name in listed else None
+
+
 def _reader_paths(path: Path, kind: str) -> list[Path]:
-    """Paths to hand to ``AnyReader``."""
+    """Paths to hand to ``AnyReader`` (a compressed rosbag2 storage file: its folder).
+
+    Raises
+    ------
+    DataError
+        A storage file compressed whole without the ``metadata.yaml`` that lists it; several
+        ``.db3`` / ``.mcap`` files in a folder without one.
+    """
     if path.name == "metadata.yaml":
         return [path.parent]
+    if path.is_file() and kind != "ros1":
+        folder = _compressed_bag_folder(path)
+        if folder is not None:
+            return [folder]
+        if path.name.lower().endswith(COMPRESSED_SUFFIXES):
+            raise DataError(
+                f"{path}: a rosbag2 file compressed whole (zstd) is read through the metadata.yaml of its folder, "
+                f"which is missing or does not list it; give the rosbag2 folder, or decompress it (zstd -d)"
+            )
     if path.is_dir():
         if (path / "metadata.yaml").is_file():
             return [path]
@@ -558,8 +598,8 @@ class RosbagSequence:
         paths = _reader_paths(self.path, kind)
         if not paths:
             raise DataError(f"{self.path}: no recording files found")
-        if self.path.is_dir() and (self.path / "metadata.yaml").is_file():
-            if any(self.path.glob("*.mcap")):
+        if paths[0].is_dir() and (paths[0] / "metadata.yaml").is_file():
+            if any(paths[0].glob("*.mcap")) or any(paths[0].glob("*.mcap.zstd")):
                 self.storage = "mcap"
         elif paths[0].suffix.lower() == ".mcap":
             self.kind = "mcap"
@@ -579,7 +619,17 @@ class RosbagSequence:
         self._ros1 = not self._reader.is2
         try:
             self.topic, self.msgtype = self._choose_topic(topic)
-            self._connections = [c for c in self._reader.connections if c.topic == self.topic]
+            self._connections = [
+                c for c in self._reader.connections if c.topic == self.topic and _is_pointcloud2(c.msgtype)
+            ]
+            others = sorted({c.msgtype for c in self._reader.connections if c.topic == self.topic} - {self.msgtype})
+            if others:
+                log.warning(
+                    "%s: topic %s also carries %s messages (another publisher); only its PointCloud2 messages are read",
+                    self.path,
+                    self.topic,
+                    ", ".join(others),
+                )
             self._index()
         except BaseException:
             self.close()
@@ -602,8 +652,18 @@ class RosbagSequence:
 
     # -- opening -----------------------------------------------------------------------------
 
+    def _topic_types(self) -> dict[str, list[str]]:
+        """Each topic's message types, from its connections (publishers of one topic may send
+        several types; rosbags then gives the topic no type)."""
+        types: dict[str, set[str]] = {}
+        for c in self._reader.connections:
+            types.setdefault(c.topic, set()).add(str(c.msgtype))
+        return {name: sorted(t) for name, t in types.items()}
+
     def _choose_topic(self, topic: str | None) -> tuple[str, str]:
-        clouds = {name: info.msgtype for name, info in self._reader.topics.items() if _is_pointcloud2(info.msgtype)}
+        """The PointCloud2 topic to read (``topic``, or the only one) and its type name."""
+        types = self._topic_types()
+        clouds = {name: m for name, t in types.items() for m in t if _is_pointcloud2(m)}
         if topic is not None:
             if topic not in clouds:
                 all_topics = sorted(self._reader.topics)
@@ -613,9 +673,8 @@ class RosbagSequence:
                 )
             return topic, clouds[topic]
         if not clouds:
-            others = {n: i.msgtype for n, i in self._reader.topics.items()}
-            listed = ", ".join(f"{n} ({t})" for n, t in sorted(others.items())[:8]) or "none"
-            hints = "".join(f"; {n} holds {_hint(t)}" for n, t in sorted(others.items())[:8] if _hint(t))
+            listed = ", ".join(f"{n} ({' + '.join(t)})" for n, t in sorted(types.items())[:8]) or "none"
+            hints = "".join(f"; {n} holds {_hint(m)}" for n, t in sorted(types.items())[:8] for m in t if _hint(m))
             raise DataError(f"{self.path}: no sensor_msgs/PointCloud2 topic (topics: {listed}){hints}")
         if len(clouds) > 1:
             raise DataError(
@@ -629,6 +688,7 @@ class RosbagSequence:
         log_times: list[int] = []
         stamps: list[float] = []
         fast = False
+        raw: bytes | memoryview = b""
         try:
             for conn, t, raw in self._reader.messages(connections=self._connections):
                 if not log_times:  # the layout is checked on opening (fields, sizes)
@@ -646,6 +706,11 @@ class RosbagSequence:
         except DataError:
             raise
         except Exception as exc:
+            if bytes(raw[:4]) == ZSTD_MAGIC:
+                raise DataError(
+                    f"{self.path}: the messages of {self.topic} are zstd-compressed (rosbag2 message compression), "
+                    "which only the bag's metadata.yaml says: give the rosbag2 folder with its metadata.yaml"
+                ) from exc
             raise DataError(
                 f"{self.path}: damaged or truncated recording (message {len(log_times)} of topic {self.topic}): "
                 f"{_describe_error(exc)}"
@@ -689,8 +754,8 @@ class RosbagSequence:
                 self._dup[i] = self._dup[i - 1] + 1
 
     def close(self) -> None:
-        """Close the recording (idempotent)."""
-        if self._reader is not None:
+        """Close the recording (idempotent; also of one whose opening failed early)."""
+        if getattr(self, "_reader", None) is not None:
             try:
                 self._reader.close()
             except Exception:  # closing a damaged file must not mask the real error

@@ -12,7 +12,7 @@ byte order, or pcapng): only Velodyne data packets of one sensor (the sender and
 port of the first data packet) reach the decoder; position (GPS, port 8308) packets and other
 traffic are skipped, data packets of a second sensor are an error naming both (their packets
 would interleave into one sweep), and a file cut inside a record is read up to there, with a
-warning.
+warning. A capture of Hesai packets (``0xEEFF``) is an error saying so (:func:`check_not_hesai`).
 
 Frame ``i`` is the ``i``-th sweep the decoder emits; an index of sweep stamps is built once when
 the capture is opened. Reading in order streams the file once; going back reopens it.
@@ -45,6 +45,8 @@ FACTORY_MODELS = {
     0x28: ("VLP32C", 32),
     0xA1: ("VLS128", 128),
 }
+#: Models whose packets carry another model's factory byte (the decoder accepts them for it).
+SAME_PACKETS = {"PuckLite": "VLP16", "AlphaPrime": "VLS128"}
 MODEL_LASERS = {
     "HDL64E_S1": 64,
     "HDL64E_S2": 64,
@@ -270,6 +272,37 @@ def looks_like_velodyne(path: str | Path) -> bool:
     return bool(udp_payloads(path, limit=1))
 
 
+#: First bytes of a Hesai data packet (the pre-header of Pandar64/QT/XT/128/AT128, the first block's
+#: flag of Pandar40P), where a Velodyne packet has ``0xFFEE``.
+HESAI_MAGIC = b"\xee\xff"
+
+
+def check_not_hesai(path: str | Path, packets: int = 16) -> None:
+    """Raise :class:`DataError` when a capture holds Hesai data packets (``packets`` of them
+    among its first UDP payloads of 500 bytes or more, before 4 x as many others), which no
+    reader here decodes. Smaller packets (GPS, PTP) are passed over."""
+    sizes: dict[int, int] = {}
+    ports: set[str] = set()
+    others = 0
+    for _t, src, payload in Capture(path, max_packets=DETECT_PACKETS, max_bytes=DETECT_BYTES):
+        if len(payload) < 500:
+            continue
+        if not payload.startswith(HESAI_MAGIC):
+            others += 1
+            if others >= 4 * packets:
+                return
+            continue
+        sizes[len(payload)] = sizes.get(len(payload), 0) + 1
+        ports.add(src.rpartition(" ")[2])
+        if sum(sizes.values()) >= packets:
+            size = max(sizes, key=sizes.__getitem__)
+            raise DataError(
+                f"{path}: Hesai lidar packets ({size} bytes starting 0xEEFF, port {', '.join(sorted(ports))}) are "
+                "not read here; convert the capture to PointCloud2 (bag/MCAP) or PCD sweeps with the Hesai driver "
+                "(HesaiLidar_ROS_2.0, nebula) and read those"
+            )
+
+
 def detect_model(path: str | Path) -> str | None:
     """The sensor model from the factory byte of the first data packet (None for the HDL-64E,
     whose packets carry no factory byte; the decoder detects it and its calibration itself)."""
@@ -316,11 +349,16 @@ class VelodynePcapSequence(SequenceBase):
         first = next((payload for _t, payload in self._packets()), None)
         if first is None:
             raise DataError(f"{path}: no Velodyne data packets (1206-byte UDP payloads starting 0xFFEE) in the capture")
+        entry = FACTORY_MODELS.get(first[-1])
         if model is None:
-            entry = FACTORY_MODELS.get(first[-1])
             model = None if entry is None else entry[0]
         if model is not None and model not in vd.Model.__members__:
             raise DataError(f"{path}: unknown Velodyne model {model!r}; choose from {list(vd.Model.__members__)}")
+        if model is not None and entry is not None and SAME_PACKETS.get(model, model) != entry[0]:
+            raise DataError(
+                f"{path}: --model {model} does not match the capture, whose packets are of a {entry[0]} "
+                f"(factory byte 0x{first[-1]:02x}); leave --model out"
+            )
         self.model = model
         self.calibration = None
         if calibration is not None:
