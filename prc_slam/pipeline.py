@@ -23,7 +23,7 @@ import numpy as np
 
 from prc_slam import labels as L
 from prc_slam.prc import PRCStream, prc_block
-from prc_slam.prc.config import PRCConfig
+from prc_slam.prc.config import AutoPreset, PRCConfig
 from prc_slam.prc.ground import GroundState, upside_down
 from prc_slam.scan import Scan, ScanError, SpinningSensor
 
@@ -65,8 +65,9 @@ class ClassifiedFrame:
         return self.scan.per_point(self.one_sided)
 
 
-def classify_frames(scans: Iterable[Scan], config: PRCConfig) -> Iterator[ClassifiedFrame]:
+def classify_frames(scans: Iterable[Scan], config: PRCConfig | AutoPreset) -> Iterator[ClassifiedFrame]:
     """Classify a sequence of scans with PRC, yielding each frame once all its slots are labelled.
+    An :class:`AutoPreset` is resolved on the first scan (and the choice said on the log).
 
     A spinning sensor's sweep is one block; the column ground's state (its ground plane) is
     carried from sweep to sweep. A continuous sensor's (profiler's) scan lines form one stream cut
@@ -80,6 +81,9 @@ def classify_frames(scans: Iterable[Scan], config: PRCConfig) -> Iterator[Classi
     spent = 0.0  # PRC time not yet attributed to a yielded frame
     spent_spans: list[tuple[float, float]] = []  # and its intervals
     for scan in scans:
+        if isinstance(config, AutoPreset):
+            auto, config = config, config.resolve(scan.sensor)
+            log.info(f"PRC preset {auto.why} (--preset paper or multibeam to choose)")
         if not scan.sensor.continuous_rows:
             wrap = True if config.wrap_columns is None else config.wrap_columns
             t0 = time.perf_counter()
@@ -386,8 +390,9 @@ class Pipeline:
 
     Parameters
     ----------
-    prc : PRCConfig or None
-        Run PRC with this configuration (None: no PRC stage; frames carry no labels).
+    prc : PRCConfig, AutoPreset or None
+        Run PRC with this configuration, or the one an :class:`AutoPreset` chooses on the first
+        scan (None: no PRC stage; frames carry no labels).
     online : object or None
         An :class:`prc_slam.online.OnlineDetector` to run on every scan.
     odometry : OdometryStage or None
@@ -413,7 +418,7 @@ class Pipeline:
     def __init__(
         self,
         *,
-        prc: PRCConfig | None = None,
+        prc: PRCConfig | AutoPreset | None = None,
         online: Any = None,
         odometry: OdometryStage | None = None,
         sinks: Sequence[Sink] = (),

@@ -199,9 +199,11 @@ def test_batch_outputs_identical_to_single_runs(client, sims, tmp_path):
     assert rows[sims[0].name]["ate_rmse_m"]["prc"] == b["variants"]["prc"]["ate_rmse_m"]
 
     # classify, alone (`prc-slam classify IN --labels-out DIR/labels --json DIR/metrics.json`)
-    prc = PRCConfig.preset("urban")
+    # (the default preset, auto: multibeam for the simulated hdl64 sweeps)
     alone = tmp_path / "alone_classify"
-    metrics, _ = classify_job(sims[1], prc, outputs=Outputs(alone / "labels"))
+    metrics, _ = classify_job(sims[1], None, outputs=Outputs(alone / "labels"))
+    prc = PRCConfig.model_validate(metrics["config"])
+    assert prc == PRCConfig.named("multibeam")
     write_json(alone / "metrics.json", metrics, Config(prc=prc))
     mine = out / sims[1].name
     labels = sorted(p.name for p in (alone / "labels").iterdir())

@@ -20,6 +20,7 @@ from prc_slam.cli.common import (
     RRD_OPT,
     SERVE_OPT,
     TOPIC_OPT,
+    ClassifyPreset,
     Mode,
     OrganizeMethod,
     Preset,
@@ -43,7 +44,10 @@ def register(app: typer.Typer) -> None:
 def classify(
     input: Path = typer.Argument(..., help="any supported input (KITTI, Ouster pcap/npz, bag, MCAP, PCD folder, ...)"),
     mode: Mode = typer.Option(Mode.urban, help="PRC classes: urban or forest (Sec. II-F)"),
-    preset: Preset = typer.Option(Preset.paper, help="paper parameters, or our multi-beam setting"),
+    preset: ClassifyPreset = typer.Option(
+        ClassifyPreset.auto,
+        help="paper parameters, our multi-beam setting, or auto: multibeam for spinning multi-beam sensors, else paper",
+    ),
     adaptive: bool | None = typer.Option(None, "--adaptive/--fixed", help="scale xi_s, xi_p with slot spacing"),
     config: Path | None = typer.Option(None, help="YAML config (overrides mode/preset)"),
     topic: str | None = TOPIC_OPT,
@@ -68,19 +72,24 @@ def classify(
     from prc_slam.jobs.classify import Outputs, classify_job
     from prc_slam.jobs.common import Viewer, write_json
     from prc_slam.jobs.progress import progress
+    from prc_slam.prc.config import PRCConfig
 
     check_outputs(labels_out=(labels_out, "dir"), las=(las, "file"), json_path=(json_path, "file"), rrd=(rrd, "file"))
-    cfg = prc_config(mode, preset, adaptive, config)
+    if preset is ClassifyPreset.auto and config is None:
+        cfg = None  # decided on the first frame
+    else:  # (a config file decides the preset)
+        named = Preset.paper if preset is ClassifyPreset.auto else Preset(preset.value)
+        cfg = prc_config(mode, named, adaptive, config)
     opts = input_options(topic, meta, model, rows, cols, destaggered, organize)
     viewer = Viewer(rrd, connect, serve_web, log_every)
     with progress() as reporter:
         metrics, written = classify_job(
-            input, cfg, fmt=fmt, max_frames=max_frames, outputs=Outputs(labels_out, las), viewer=viewer,
-            reporter=reporter, **opts,
+            input, cfg, mode=mode.value, adaptive=adaptive, fmt=fmt, max_frames=max_frames,
+            outputs=Outputs(labels_out, las), viewer=viewer, reporter=reporter, **opts,
         )  # fmt: skip
     summary(metrics, f"PRC on {input}")
     if json_path is not None:
-        written += write_json(json_path, metrics, Config(prc=cfg))
+        written += write_json(json_path, metrics, Config(prc=PRCConfig.model_validate(metrics["config"])))
     wrote(written)
 
 

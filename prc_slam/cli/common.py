@@ -43,6 +43,14 @@ class Preset(str, Enum):
     multibeam = "multibeam"
 
 
+class ClassifyPreset(str, Enum):
+    """``classify``'s presets: ``auto`` takes the one the input's sensor calls for."""
+
+    auto = "auto"
+    paper = "paper"
+    multibeam = "multibeam"
+
+
 def one_line(exc: BaseException) -> str:
     """An exception as one line naming the option or file: pydantic validation errors name the
     option (``--speed: ...``), everything else is its message's first line."""
@@ -252,16 +260,8 @@ def prc_config(mode: Mode, preset: Preset, adaptive: bool | None, config_path: P
 
     if config_path is not None:
         cfg = Config.from_yaml(config_path).prc
-    elif preset is Preset.multibeam:
-        cfg = PRCConfig.preset("multibeam")
-    else:
-        cfg = PRCConfig.preset(mode.value)
-    updates: dict[str, Any] = {}
-    if config_path is None and preset is Preset.multibeam and mode is Mode.forest:
-        updates["mode"] = "forest"
-    if adaptive is not None:
-        updates["adaptive"] = adaptive
-    return cfg.model_copy(update=updates) if updates else cfg
+        return cfg if adaptive is None else cfg.model_copy(update={"adaptive": adaptive})
+    return PRCConfig.named(preset.value, mode.value, adaptive)
 
 
 def run_config(preset: Preset, config_path: Path | None, mode: Mode = Mode.urban):

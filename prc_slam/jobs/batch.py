@@ -77,7 +77,7 @@ class ClassifyJob(_Job):
 
     kind: Literal["classify"]
     mode: Literal["urban", "forest"] = "urban"
-    preset: Literal["paper", "multibeam"] = "paper"
+    preset: Literal["auto", "paper", "multibeam"] = "auto"
     adaptive: bool | None = None
     config: Path | None = None
     destaggered: bool = False
@@ -305,13 +305,9 @@ def _prc_config(job: Any):
 
     if job.config is not None:
         return Config.from_yaml(job.config).prc
-    cfg = PRCConfig.preset("multibeam" if job.preset == "multibeam" else job.mode)
-    updates: dict[str, Any] = {}
-    if job.preset == "multibeam" and job.mode == "forest":
-        updates["mode"] = "forest"
-    if getattr(job, "adaptive", None) is not None:
-        updates["adaptive"] = job.adaptive
-    return cfg.model_copy(update=updates) if updates else cfg
+    if job.preset == "auto":
+        return None  # classify: decided on the first frame
+    return PRCConfig.named(job.preset, job.mode, getattr(job, "adaptive", None))
 
 
 def _run_config(job: Any):
@@ -337,14 +333,15 @@ def run_job(task: Task, out: Path) -> dict[str, Any]:
     if job.kind in ("classify", "detect"):
         from prc_slam.config import Config
         from prc_slam.jobs.classify import Outputs, classify_job, detect_job
+        from prc_slam.prc.config import PRCConfig
 
         outputs = Outputs(out / "labels" if job.labels else None, out / f"{job.kind}ed.las" if job.las else None)
         if job.kind == "classify":
-            cfg = _prc_config(job)
             metrics, _ = classify_job(
-                source, cfg, fmt=job.format, max_frames=job.max_frames, outputs=outputs, **job.open_options()
-            )
-            write_json(out / "metrics.json", metrics, Config(prc=cfg))
+                source, _prc_config(job), mode=job.mode, adaptive=job.adaptive, fmt=job.format,
+                max_frames=job.max_frames, outputs=outputs, **job.open_options(),
+            )  # fmt: skip
+            write_json(out / "metrics.json", metrics, Config(prc=PRCConfig.model_validate(metrics["config"])))
             pps = metrics.get("points_per_s")
         else:
             metrics, _ = detect_job(

@@ -12,7 +12,7 @@ from prc_slam.jobs.common import Viewer, frames_of, open_input
 from prc_slam.jobs.progress import Reporter
 from prc_slam.jobs.sinks import LabelFiles, LasFile, ViewerSink
 from prc_slam.pipeline import Pipeline
-from prc_slam.prc.config import PRCConfig
+from prc_slam.prc.config import AutoPreset, PRCConfig
 from prc_slam.scoring import OnlineScorer, PRCScorer
 
 log = logging.getLogger("prc_slam.jobs")
@@ -89,8 +89,10 @@ def _run(
 
 def classify_job(
     input: Path,
-    config: PRCConfig,
+    config: PRCConfig | None,
     *,
+    mode: str = "urban",
+    adaptive: bool | None = None,
     fmt: str | None = None,
     max_frames: int | None = None,
     outputs: Outputs | None = None,
@@ -98,18 +100,24 @@ def classify_job(
     reporter: Reporter | None = None,
     **open_options: Any,
 ) -> tuple[dict[str, Any], list[Path]]:
-    """PRC on every frame of ``input``; returns the ``classify`` metrics and the files written."""
+    """PRC on every frame of ``input``; returns the ``classify`` metrics (``config``: the PRC
+    config used) and the files written. ``config`` None (``--preset auto``): the preset the
+    first sweep's sensor calls for (:class:`AutoPreset`, in ``mode``, ``adaptive`` when
+    given), said on the log."""
     from prc_slam.prc.algorithm import warm_up
 
     outputs = outputs or Outputs()
     viewer = viewer or Viewer()
     dataset, n = open_input(input, fmt, max_frames, **open_options)
+    prc = config if config is not None else AutoPreset(mode, adaptive)
     warm_up()
     scorer = PRCScorer()
     sinks, las = _file_sinks(outputs, "prc")
-    result = _run(Pipeline(prc=config, sinks=[scorer, *sinks]), dataset, n, viewer, reporter, "PRC", outputs)
+    result = _run(Pipeline(prc=prc, sinks=[scorer, *sinks]), dataset, n, viewer, reporter, "PRC", outputs)
     metrics = scorer.metrics(result)
     metrics["input"] = str(input)
+    if isinstance(prc, AutoPreset):  # (no sweep read: the paper's, as the choice would have been)
+        config = prc.config or PRCConfig.named("paper", mode, adaptive)
     metrics["config"] = config.model_dump(mode="json")
     return metrics, _written(viewer, las, outputs)
 
