@@ -167,6 +167,33 @@ def one_class(labels: np.ndarray, ranges: np.ndarray, min_returns: int = 1000) -
     return L.names([top])[0], 100.0 * counts[top] / len(codes)
 
 
+#: A frame with this share of its returns called noise or more is warned (rain, snow and dust
+#: can do that; so can a range image that does not fit the sensor: isolated slots everywhere).
+NOISE_WARN_SHARE = 0.25
+
+
+def noise_share(labels: np.ndarray, ranges: np.ndarray, min_returns: int = 1000) -> float | None:
+    """The share of a frame's returns (slots with a range) labelled noise, for frames of at least
+    ``min_returns`` returns (else None)."""
+    ret = np.asarray(ranges) > 0
+    n = int(np.count_nonzero(ret))
+    if n < min_returns:
+        return None
+    return int(np.count_nonzero(np.asarray(labels)[ret] == L.NOISE)) / n
+
+
+def mostly_noise_message(scan: Scan, share: float) -> str:
+    """The warning for a frame of which PRC called ``share`` (>= :data:`NOISE_WARN_SHARE`) noise."""
+    rows, cols = scan.ranges.shape
+    fill = np.count_nonzero(scan.ranges > 0) / max(scan.ranges.size, 1)
+    return (
+        f"{scan.source}: PRC called {share:.1%} of the range image's returns noise (isolated): rain, snow or dust "
+        "can do that; so can a sensor whose points do not lie on the rings of a spinning one (mirror-scanning, "
+        f"solid-state) or a range image that does not fit it ({rows} x {cols} slots, {fill:.1%} holding a return: "
+        "check --rows / --cols)"
+    )
+
+
 _END = object()
 
 
@@ -337,6 +364,7 @@ class PipelineResult:
     empty_frames: int = 0
     frames_without_ground: int = 0
     frames_one_class: int = 0  # frames with ONE_CLASS_SHARE of their returns or more in one class
+    frames_mostly_noise: int = 0  # frames with NOISE_WARN_SHARE of their returns or more called noise
     prc_seconds: float = 0.0
     online_seconds: float = 0.0
     online_seconds_first: float = 0.0
@@ -360,6 +388,8 @@ class PipelineResult:
             out["frames_without_ground"] = self.frames_without_ground
         if self.frames_one_class:
             out["frames_one_class"] = self.frames_one_class
+        if self.frames_mostly_noise:
+            out["frames_mostly_noise"] = self.frames_mostly_noise
         if self.skipped:
             out["skips"] = [{"index": s.index, "source": s.source, "reason": s.reason} for s in self.skipped]
         if self.organize:
@@ -512,6 +542,11 @@ class Pipeline:
                             f"{scan.source}: PRC put {one[1]:.1f}% of the returns in one class ({one[0]}): the "
                             "sensor model or the units are likely wrong for this input"
                         )
+                elif frame.labels is not None and (share := noise_share(frame.labels, scan.ranges)) is not None:
+                    if share >= NOISE_WARN_SHARE:
+                        result.frames_mostly_noise += 1
+                        if result.frames_mostly_noise == 1:  # once per run; the count is in the summary
+                            self.warn(mostly_noise_message(scan, share))
                 step = PipelineFrame(index, frame)
                 if self.online is not None:
                     step.online = self.online.process(scan)

@@ -19,19 +19,37 @@ from prc_slam.pipeline import PipelineFrame, PipelineResult
 SOLID_CLASSES = [L.GROUND, L.BUILDING, L.VEGETATION, L.TRUNK, L.VEHICLE, L.POLE]
 
 
+def class_shares(counts: np.ndarray) -> dict[str, dict[str, float]]:
+    """``{name: {"points", "share"}}`` of the classes in ``counts`` (points per label code),
+    shares of the points with a return (code 0 left out), largest first."""
+    returns = int(counts[1:].sum())
+    codes = [c for c in np.flatnonzero(counts) if c != L.NO_RETURN]
+    codes.sort(key=lambda c: -counts[c])
+    return {
+        L.CODE_TO_NAME.get(int(c), str(int(c))): {"points": int(counts[c]), "share": float(counts[c]) / returns}
+        for c in codes
+    }
+
+
 class PRCScorer:
-    """PRC labels against the reference labels of every frame that has them."""
+    """PRC labels against the reference labels of every frame that has them; the points of
+    every class in every frame (``classes``), labelled or not."""
 
     def __init__(self) -> None:
         self.confusion = ConfusionAccumulator()
         self.have_gt = False
+        self.counts = np.zeros(256, np.int64)
 
     def frame(self, step: PipelineFrame) -> None:
+        if step.frame.labels is None:
+            return
+        labels = step.frame.point_labels()
+        self.counts += np.bincount(labels, minlength=256)[:256]
         ref = step.scan.reference_labels()
-        if ref is None or step.frame.labels is None:
+        if ref is None:
             return
         self.have_gt = True
-        self.confusion.add(ref, step.frame.point_labels())
+        self.confusion.add(ref, labels)
 
     def close(self, result: PipelineResult) -> None:
         pass
@@ -43,6 +61,7 @@ class PRCScorer:
             "seconds": result.prc_seconds,
             "wall_seconds": result.wall_seconds,
             "points_per_s": result.points / result.prc_seconds if result.prc_seconds > 0 else None,
+            "classes": class_shares(self.counts),
         }
         if self.have_gt:
             out["per_class"] = self.confusion.per_class()

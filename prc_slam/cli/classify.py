@@ -108,6 +108,9 @@ def summary(metrics: dict, title: str) -> None:
             f"(NaN/inf, at the origin or beyond 100 km: label 0); {metrics['empty_frames']} empty frames",
             highlight=False,
         )
+    if metrics.get("classes"):
+        shares = ", ".join(f"{name} {c['share']:.1%}" for name, c in metrics["classes"].items())
+        console.print(f"classes (share of the returns): {shares}", highlight=False)
     if "per_class" in metrics:
         print_table(class_table(metrics, title))
         console.print(
