@@ -78,7 +78,7 @@ FORMAT_OPTIONS: dict[str, tuple[str, ...]] = {
     "rosbag": ("topic", *_ORGANISER_OPTIONS),
 }
 
-_OPTION_FLAGS = {"organize_method": "--organize", "destaggered": "--destaggered"}
+_OPTION_FLAGS = {"organize_method": "--organize", "destaggered": "--staggered"}
 
 
 def _organiser(path: Path, options: dict[str, object], **extra: object):
@@ -102,7 +102,8 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
     organiser's hints ``rows``, ``cols``, ``organize_method``); one that the input's format does not
     take raises :class:`DataError` naming it."""
     fmt = FORMAT_ALIASES.get(fmt, fmt) if fmt else detect_format(path)
-    given = {k: v for k, v in options.items() if v is not None and v is not False}
+    # (destaggered=True is the default: not an option given)
+    given = {k: v for k, v in options.items() if v is not None and not (k == "destaggered" and v is True)}
     allowed = FORMAT_OPTIONS.get(fmt)
     if allowed is not None:
         unused = [k for k in given if k not in allowed]
@@ -122,7 +123,7 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
     if fmt == "ouster":
         from data_tools.ouster import OusterSequence
 
-        return OusterSequence(path, destaggered=bool(options.get("destaggered", False)))
+        return OusterSequence(path, destaggered=bool(options.get("destaggered", True)))
     if fmt == "sim":
         from data_tools.sim.dataset import SimSequence
 
@@ -132,7 +133,7 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
 
         meta = options.get("meta")
         return OusterPcapSequence(
-            path, meta=None if meta is None else str(meta), destaggered=bool(options.get("destaggered", False))
+            path, meta=None if meta is None else str(meta), destaggered=bool(options.get("destaggered", True))
         )
     if fmt == "velodyne-pcap":
         from data_tools.velodyne_pcap import VelodynePcapSequence

@@ -30,15 +30,17 @@ def destagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
     return np.take_along_axis(image, idx.reshape(idx.shape + (1,) * (image.ndim - 2)), axis=1)
 
 
-def read_ouster_npz(path: str | Path, *, destaggered: bool = False, name: str | None = None) -> Scan:
+def read_ouster_npz(path: str | Path, *, destaggered: bool = True, name: str | None = None) -> Scan:
     """Read one decoded Ouster sweep as a Scan (rows = beams, columns = measurement ids).
 
     Parameters
     ----------
     path : path of the ``.npz``
     destaggered : bool
-        Shift rows by ``pixel_shift_by_row`` so columns are azimuths; by default the image is
-        kept in measurement (emission) order, the raw stream PRC is defined on.
+        Shift rows by ``pixel_shift_by_row`` so that a column holds one azimuth for all beams
+        (the default: PRC's tests across scan lines compare a slot with the slots above and
+        below it, which in measurement order lie up to 22 deg away on an OS0); False keeps the
+        measurement (emission) order of the raw stream.
     """
     path = Path(path)
     try:
@@ -74,7 +76,7 @@ def ouster_scan(
     column_valid: np.ndarray | None = None,
     reflectivity: np.ndarray | None = None,
     xyz_lidar_m: np.ndarray | None = None,
-    destaggered: bool = False,
+    destaggered: bool = True,
     name: str = "000000",
     source: str = "<memory>",
     meta: dict | None = None,
@@ -170,7 +172,7 @@ class OusterSequence(SequenceBase):
 
     format = "ouster"
 
-    def __init__(self, path: str | Path, *, destaggered: bool = False) -> None:
+    def __init__(self, path: str | Path, *, destaggered: bool = True) -> None:
         path = Path(path)
         self.files = sorted(path.glob("*.npz")) if path.is_dir() else [path]
         if not self.files:

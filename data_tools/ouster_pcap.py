@@ -89,7 +89,8 @@ class OusterPcapSequence(SequenceBase):
     ----------
     path : the ``.pcap``
     meta : the sensor metadata json (default: found by :func:`find_metadata`)
-    destaggered : shift rows by ``pixel_shift_by_row`` (default: measurement order, the raw stream)
+    destaggered : shift rows by ``pixel_shift_by_row`` so that columns are azimuths (the default, as
+        :func:`data_tools.ouster.read_ouster_npz`); False: measurement order, the raw stream
     field : the range channel to read (``RANGE``; ``RANGE2`` for the second return of dual-return profiles)
 
     Attributes
@@ -107,7 +108,7 @@ class OusterPcapSequence(SequenceBase):
         path: str | Path,
         *,
         meta: str | Path | None = None,
-        destaggered: bool = False,
+        destaggered: bool = True,
         field: str = "RANGE",
     ) -> None:
         path = Path(path)

@@ -513,7 +513,7 @@ def test_ouster_lidar_modes_and_profiles_read_every_pixel(tmp_path, caplog, mode
     path, truth = ouster_capture(tmp_path, "cap", mode, profile)
     cols, hz = (int(v) for v in mode.split("x"))
     with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
-        ds = open_dataset(path)
+        ds = open_dataset(path, destaggered=False)  # measurement order, as the packets were written
         scans = list(ds)
     assert len(scans) == 2
     np.testing.assert_allclose(np.diff(ds.times), 1.0 / hz, rtol=1e-3)

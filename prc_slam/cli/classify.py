@@ -57,7 +57,11 @@ def classify(
     cols: int | None = COLS_OPT,
     organize: OrganizeMethod | None = ORGANIZE_OPT,
     fmt: str | None = FORMAT_OPT,
-    destaggered: bool = typer.Option(False, help="Ouster: destagger rows by pixel_shift_by_row"),
+    destaggered: bool = typer.Option(
+        True,
+        "--destaggered/--staggered",
+        help="Ouster: rows shifted by pixel_shift_by_row (columns are azimuths), or in measurement order",
+    ),
     max_frames: int | None = MAX_FRAMES_OPT,
     labels_out: Path | None = typer.Option(None, help="write NNNNNN.label per frame here"),
     las: Path | None = typer.Option(None, help="write the classified points as LAS 1.4 (.laz: compressed)"),

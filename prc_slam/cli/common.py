@@ -278,15 +278,15 @@ def input_options(
     model: str | None = None,
     rows: int | None = None,
     cols: int | None = None,
-    destaggered: bool = False,
+    destaggered: bool = True,
     organize: OrganizeMethod | None = None,
 ) -> dict[str, Any]:
     """The reader options given on the command line (only those set), for ``open_dataset``."""
     opts: dict[str, Any] = {"topic": topic, "meta": meta, "model": model, "rows": rows, "cols": cols}
     if organize is not None:
         opts["organize_method"] = organize.value
-    if destaggered:
-        opts["destaggered"] = True
+    if not destaggered:  # (the readers' default is destaggered)
+        opts["destaggered"] = False
     return {k: v for k, v in opts.items() if v is not None}
 
 

@@ -67,8 +67,8 @@ class _Job(BaseModel):
     def open_options(self) -> dict[str, Any]:
         """The reader options set (for ``open_dataset``)."""
         opts = {"topic": self.topic, "meta": self.meta, "model": self.model, "rows": self.rows, "cols": self.cols}
-        if getattr(self, "destaggered", False):
-            opts["destaggered"] = True
+        if getattr(self, "destaggered", True) is False:  # (the readers' default is destaggered)
+            opts["destaggered"] = False
         return {k: v for k, v in opts.items() if v is not None}
 
 
@@ -80,7 +80,7 @@ class ClassifyJob(_Job):
     preset: Literal["auto", "paper", "multibeam"] = "auto"
     adaptive: bool | None = None
     config: Path | None = None
-    destaggered: bool = False
+    destaggered: bool = True
     labels: bool = True
     las: bool = False
 
