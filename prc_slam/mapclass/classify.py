@@ -62,6 +62,13 @@ class GroundParams(_Params):
     points_per_cell: float = Field(
         4.0, gt=0, description="relative density: the cell grows until a surface of the cloud's density fills it so"
     )
+    terrain: Literal["auto", "on", "off"] = Field(
+        "auto",
+        description="terrain-relative tests (slopes, terraces, hills; ground.detect_ground); off = paper. auto: on "
+        "for clouds of airborne density (under terrain_max_density) and where the terrain is not level",
+    )
+    terrain_max_density: float = Field(100.0, ge=0, description="auto: surface points/m^2 of an airborne cloud")
+    min_relief: float = Field(0.05, ge=0, description="auto: median slope of the terrain (rise/m) not level")
 
 
 class BuildingParams(_Params):
@@ -158,6 +165,7 @@ def paper_config() -> MapClassConfig:
     per-point formulation)."""
     return MapClassConfig(
         density_relative=False,
+        ground=GroundParams(terrain="off"),
         building=BuildingParams(min_height=0.0, min_reach=0.0, spare_objects=False, roof_height=0.0, under_roof=0.0),
         vehicle=VehicleParams(max_verticality=1.0, group_voxel=0.0, skip_foliage=False),
         vegetation=VegetationParams(foliage_only=False),
@@ -168,8 +176,10 @@ def paper_config() -> MapClassConfig:
 @dataclass
 class MapResult:
     """Labels and metrics per input point, stage times (s), the count of non-finite points, the
-    sizes and threshold used (``scale``), the share of points under the density threshold and
-    the messages about the input (also issued as :class:`DensityWarning`)."""
+    sizes and threshold used (``scale``), the share of points under the density threshold, the
+    messages about the input (also issued as :class:`DensityWarning`) and how the ground was found
+    (``ground``: ``terrain``, whether the terrain-relative tests ran, and ``relief``, the
+    terrain's median slope, when measured)."""
 
     labels: np.ndarray
     segment: np.ndarray
@@ -180,6 +190,7 @@ class MapResult:
     scale: DensityScale | None = None
     below_share: float = 0.0
     messages: list[str] = field(default_factory=list)
+    ground: dict = field(default_factory=dict)
 
 
 class DensityWarning(UserWarning):
@@ -234,7 +245,8 @@ def classify_map(points: np.ndarray, config: MapClassConfig | None = None) -> Ma
         pts = _take_rows(pts, order)
         clock.lap("order")
     scale = density_scale(pts, cfg)
-    lab, seg, density, vert = _classify_finite(pts, cfg, clock, scale)
+    ground: dict = {}
+    lab, seg, density, vert = _classify_finite(pts, cfg, clock, scale, ground)
     if order is not None:
         lab, seg, density, vert = _unpermute(order, lab, seg, density, vert)
     below = float(np.mean(density < scale.threshold)) if len(density) else 0.0
@@ -244,10 +256,10 @@ def classify_map(points: np.ndarray, config: MapClassConfig | None = None) -> Ma
         messages.append(below_message(below, scale.threshold, median, scale.relative, cfg.min_density))
         warnings.warn(messages[-1], DensityWarning, stacklevel=2)
     if not n_bad:
-        return MapResult(lab, seg, density, vert, clock.seconds, 0, scale, below, messages)
+        return MapResult(lab, seg, density, vert, clock.seconds, 0, scale, below, messages, ground)
     out = MapResult(
         np.full(len(finite), L.NO_RETURN, np.uint8), np.full(len(finite), -1, np.int64),
-        np.zeros(len(finite)), np.zeros(len(finite)), clock.seconds, n_bad, scale, below, messages,
+        np.zeros(len(finite)), np.zeros(len(finite)), clock.seconds, n_bad, scale, below, messages, ground,
     )  # fmt: skip
     out.labels[finite], out.segment[finite], out.density[finite], out.verticality[finite] = lab, seg, density, vert
     return out
@@ -406,7 +418,7 @@ def density_scale(points: np.ndarray, cfg: MapClassConfig) -> DensityScale:
 
 
 def _classify_finite(
-    pts: np.ndarray, cfg: MapClassConfig, clock: _Clock, scale: DensityScale
+    pts: np.ndarray, cfg: MapClassConfig, clock: _Clock, scale: DensityScale, ground_info: dict
 ) -> tuple[np.ndarray, ...]:
     n = len(pts)
     labels = np.full(n, L.UNCLASSIFIED, dtype=np.uint8)
@@ -453,9 +465,12 @@ def _classify_finite(
         on the density voxels (inliers only; needs the normals alone; its seconds) and the split
         of the points, off the ground or not."""
         g = cfg.ground
+        airborne = 0 < scale.rho < g.terrain_max_density
+        terrain = {"on": True, "off": False}.get(g.terrain, True if airborne else "auto")
         mask = detect_ground(
-            p, scale.ground_cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance
-        )
+            p, scale.ground_cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance,
+            terrain_relative=terrain, min_relief=g.min_relief, info=ground_info,
+        )  # fmt: skip
         t = time.perf_counter()
         v = M.verticality(normals, dgrid.voxel, dgrid.n_voxels, normal_of, idx)
         _scatter(vert, idx, v)

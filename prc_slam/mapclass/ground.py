@@ -118,16 +118,60 @@ def _xy_bounds(points):
 
 @njit(cache=True, nogil=True)
 def _point_mask(points, x0, y0, inv_cell, zmin, ground_cell, tolerance):
+    """Points of ground cells at most ``tolerance[ix, iy]`` above their cell's minimum."""
     out = np.empty(points.shape[0], np.bool_)
     for i in range(points.shape[0]):
         ix = int((points[i, 0] - x0) * inv_cell)
         iy = int((points[i, 1] - y0) * inv_cell)
-        out[i] = ground_cell[ix, iy] and points[i, 2] - zmin[ix, iy] <= tolerance
+        out[i] = ground_cell[ix, iy] and points[i, 2] - zmin[ix, iy] <= tolerance[ix, iy]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _minmod(a, b):
+    """The smaller of two one-sided slopes when they agree in sign, else 0 (NaN: the other)."""
+    if np.isnan(a):
+        return 0.0 if np.isnan(b) else b
+    if np.isnan(b):
+        return a
+    if a * b <= 0:
+        return 0.0
+    return a if abs(a) < abs(b) else b
+
+
+@njit(cache=True, nogil=True)
+def slope_tolerance(zmin, ground_cell, cell, tolerance, max_step, terrain_slope, out):
+    """``out`` = ``tolerance``, or where more, ``max_step`` plus the rise of the terrain across a
+    ground cell, ``(|sx| + |sy|) · cell`` (level ground keeps ``tolerance``), with ``sx``,
+    ``sy`` the terrain slopes from the neighbouring ground cells' minima (one-sided
+    differences, the smaller where both agree: a plane's slope on a plane, the gentler side at
+    a break; at most ``terrain_slope``). On a 30 deg slope the points of one 0.7 m cell span
+    0.4-0.6 m: ``tolerance`` alone drops most of them."""
+    nx, ny = zmin.shape
+    for i in range(nx):
+        for j in range(ny):
+            if not ground_cell[i, j]:
+                out[i, j] = tolerance
+                continue
+            z = zmin[i, j]
+            lo = (z - zmin[i - 1, j]) / cell if i > 0 and ground_cell[i - 1, j] else np.nan
+            hi = (zmin[i + 1, j] - z) / cell if i + 1 < nx and ground_cell[i + 1, j] else np.nan
+            sx = min(abs(_minmod(lo, hi)), terrain_slope)
+            lo = (z - zmin[i, j - 1]) / cell if j > 0 and ground_cell[i, j - 1] else np.nan
+            hi = (zmin[i, j + 1] - z) / cell if j + 1 < ny and ground_cell[i, j + 1] else np.nan
+            sy = min(abs(_minmod(lo, hi)), terrain_slope)
+            out[i, j] = max(tolerance, max_step + (sx + sy) * cell)
     return out
 
 
 def scan_line_votes(
-    zmin: np.ndarray, zlocal: np.ndarray, cell: float, max_slope: float, max_step: float, max_above_local: float
+    zmin: np.ndarray,
+    zlocal: np.ndarray,
+    cell: float,
+    max_slope: float,
+    max_step: float,
+    max_above_local: float,
+    terrain_slope: float = 0.0,
 ) -> np.ndarray:
     """Ground votes per cell from the eight scan-line directions.
 
@@ -135,6 +179,12 @@ def scan_line_votes(
     above the minimum of its neighbourhood (``zlocal``) and (b) it rises from the last ground
     cell of the line by at most ``max_slope · distance + max_step`` (descents always pass); the
     first non-empty cell of a line needs (a) only. Empty cells carry the last ground height on.
+    With ``terrain_slope`` > 0, (b) also passes a cell that continues the line's ground without
+    a break: the last non-empty cell was ground, at most two steps back, and the rise from it
+    is at most ``terrain_slope · distance + max_step`` (a hillside climbed cell by cell, not a
+    wall, which rises metres within a cell; the paper's ``max_slope`` still bounds the rise
+    across a break, where the distance since the last ground would otherwise let any height
+    pass).
 
     Returns
     -------
@@ -142,12 +192,12 @@ def scan_line_votes(
         Directions that saw the cell as ground (0..8).
     """
     votes = np.zeros(zmin.shape, np.int64)
-    _add_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, votes)
+    _add_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, terrain_slope, votes)
     return votes
 
 
 @njit(cache=True, nogil=True)
-def _add_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, votes):
+def _add_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, terrain_slope, votes):
     """:func:`scan_line_votes` into ``votes`` (zeros)."""
     nx, ny = zmin.shape
     # all lines of a direction are swept at once, row by row of the grid (each line meets a
@@ -155,11 +205,14 @@ def _add_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, votes):
     # since) kept per line: the grid is read in memory order, not along the lines
     zg = np.empty(nx + ny + 1)
     dist = np.empty(nx + ny + 1)
+    follow = np.zeros(nx + ny + 1, np.bool_)  # the line's last non-empty cell was ground
     for d in range(DIRECTIONS.shape[0]):
         dx, dy = DIRECTIONS[d, 0], DIRECTIONS[d, 1]
         step = cell * np.sqrt(dx * dx + dy * dy)
+        reach = 2.5 * step  # "without a break": at most one empty cell between
         zg[:] = np.nan
         dist[:] = 0.0
+        follow[:] = False
         for i in range(nx):
             x = i if dx >= 0 else nx - 1 - i
             for j in range(ny):
@@ -171,11 +224,51 @@ def _add_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, votes):
                 if np.isfinite(z):
                     ok = z - zlocal[x, y] <= max_above_local
                     if ok and not np.isnan(zg[line]):
-                        ok = z - zg[line] <= max_slope * dist[line] + max_step
+                        rise = z - zg[line]
+                        ok = rise <= max_slope * dist[line] + max_step or (
+                            follow[line] and dist[line] < reach and rise <= terrain_slope * dist[line] + max_step
+                        )
                     if ok:
                         votes[x, y] += 1
                         zg[line] = z
                         dist[line] = 0.0
+                    follow[line] = ok and terrain_slope > 0
+
+
+def opening_window(a: np.ndarray, w: int) -> np.ndarray:
+    """Grey-scale opening of ``a`` by a ``w`` x ``w`` flat square (odd ``w``): per cell, the
+    highest minimum among the windows that contain it (a minimum over windows, then a maximum
+    over the same windows; windows may reach past the grid's edge, where they hold nothing).
+    Empty cells (``inf``) take no part. A cell's value is the lowest surface of the
+    neighbourhood *on its own side* of a slope or an edge: on any plane, on a rim or at the foot
+    of a wall it is the cell itself, on an object narrower than ``w`` cells the ground beside
+    it (the filter of Zhang et al. 2003 with one window)."""
+    r = w // 2
+    low = minimum_window(np.pad(np.asarray(a, np.float64), r, constant_values=np.inf), w)
+    low[np.isinf(low)] = -np.inf  # windows without a point: no minimum to offer
+    np.negative(low, out=low)
+    out = minimum_window(low, w)[r : r + a.shape[0], r : r + a.shape[1]]
+    np.negative(out, out=out)
+    return out
+
+
+def terrain_relief(zmin: np.ndarray, cell: float, block: float = 10.0) -> float:
+    """How far the terrain departs from level: the median slope (rise per metre) between
+    neighbouring ``block``-metre blocks of the grid-minimum surface ``zmin`` (cells of ``cell``
+    m, ``inf`` where empty), each block at its lowest cell. The median over the blocks' pairs is
+    the slope of most of the terrain: roofs over whole blocks and walls are the few; 0 when
+    fewer than two neighbouring blocks hold points. The paper's window test (a cell at most
+    ``max_above_local`` above the lowest cell ``local_radius`` around) holds on level ground
+    only: on a slope of ``s`` the window's foot lies ``s * local_radius * sqrt(2)`` lower."""
+    k = max(1, round(block / cell))
+    nx, ny = (-(-np.array(zmin.shape) // k) * k).tolist()
+    padded = np.full((nx, ny), np.inf)
+    padded[: zmin.shape[0], : zmin.shape[1]] = zmin
+    low = padded.reshape(nx // k, k, ny // k, k).min(axis=(1, 3))
+    with np.errstate(invalid="ignore"):  # empty blocks: inf - inf
+        rise = np.concatenate([np.abs(np.diff(low, axis=ax)).ravel() for ax in (0, 1)])
+    rise = rise[np.isfinite(rise)]
+    return float(np.median(rise)) / (k * cell) if len(rise) else 0.0
 
 
 def detect_ground(
@@ -186,6 +279,10 @@ def detect_ground(
     max_step: float = 0.1,
     max_above_local: float = 0.5,
     tolerance: float = 0.2,
+    terrain_relative: bool | str = False,
+    terrain_slope: float = 0.84,
+    min_relief: float = 0.05,
+    info: dict | None = None,
 ) -> np.ndarray:
     """Sec. 4.1: ground mask of ``points``.
 
@@ -201,6 +298,23 @@ def detect_ground(
         Scan-line tests (see :func:`scan_line_votes`).
     tolerance : float
         A point of a ground cell is ground when at most this far (m) above the cell minimum.
+    terrain_relative : bool or "auto"
+        False (the paper's Sec. 4.1): a cell is compared with the minimum of the window
+        centred on it. True (terrain, issue 20): with the lowest surface of its own side of
+        the neighbourhood (:func:`opening_window`), so that slopes, rims of terraces and
+        quarry walls, and hilltops are not measured against the foot of the slope below them;
+        scan lines follow ground that rises without a break up to ``terrain_slope``
+        (:func:`scan_line_votes`), and on a slope a ground cell's points may lie the terrain's
+        rise across the cell (plus ``max_step``) above its minimum (:func:`slope_tolerance`).
+        ``"auto"``: True where the terrain is not level (:func:`terrain_relief` at least
+        ``min_relief``), the paper's test on level ground.
+    terrain_slope : float
+        With ``terrain_relative``: the steepest terrain followed (rise per metre; 0.84 = 40 deg).
+    min_relief : float
+        ``"auto"``: the median slope (rise per metre) from which the terrain is not level.
+    info : dict, optional
+        Filled with ``terrain`` (whether the terrain-relative test ran) and, in ``"auto"``,
+        ``relief``.
 
     Returns
     -------
@@ -215,7 +329,18 @@ def detect_ground(
     zmin = np.full((nx, ny), np.inf)
     _grid_min(pts, lo[0], lo[1], 1.0 / cell, zmin)
     w = 2 * int(np.ceil(local_radius / cell)) + 1
-    zlocal = minimum_window(zmin, w)
-    votes = scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local)
+    info = {} if info is None else info
+    if terrain_relative == "auto":
+        info["relief"] = terrain_relief(zmin, cell)
+        terrain_relative = info["relief"] >= min_relief
+    info["terrain"] = bool(terrain_relative)
+    if not terrain_relative:  # the paper's Sec. 4.1
+        zlocal = minimum_window(zmin, w)
+        votes = scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local)
+        ground_cell = votes > len(DIRECTIONS) - votes
+        return _point_mask(pts, lo[0], lo[1], 1.0 / cell, zmin, ground_cell, np.full(zmin.shape, tolerance))
+    zlocal = opening_window(zmin, w)
+    votes = scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, terrain_slope)
     ground_cell = votes > len(DIRECTIONS) - votes
-    return _point_mask(pts, lo[0], lo[1], 1.0 / cell, zmin, ground_cell, tolerance)
+    tol = slope_tolerance(zmin, ground_cell, cell, tolerance, max_step, terrain_slope, np.empty_like(zmin))
+    return _point_mask(pts, lo[0], lo[1], 1.0 / cell, zmin, ground_cell, tol)
