@@ -114,6 +114,14 @@ class VegetationParams(_Params):
     factor: float = Field(2.0, gt=0, description="segment density above factor x average")
     min_similar: int = Field(2, ge=0, description="neighbouring voxels that high")
     foliage_only: bool = Field(True, description="also ask for foliage (MapClassConfig.foliage_share); False = paper")
+    canopy_share: float | None = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description="urban: where foliage is this share of the points off the ground or more (a wooded tile), "
+        "Sec. 4.5's 'higher than on average' has no contrast and foliage alone is vegetation, as in forest mode; "
+        "None = paper",
+    )
 
 
 class MapClassConfig(_Params):
@@ -168,7 +176,7 @@ def paper_config() -> MapClassConfig:
         ground=GroundParams(terrain="off"),
         building=BuildingParams(min_height=0.0, min_reach=0.0, spare_objects=False, roof_height=0.0, under_roof=0.0),
         vehicle=VehicleParams(max_verticality=1.0, group_voxel=0.0, skip_foliage=False),
-        vegetation=VegetationParams(foliage_only=False),
+        vegetation=VegetationParams(foliage_only=False, canopy_share=None),
         post=PostParams(skip_stems=False),
     )
 
@@ -557,6 +565,9 @@ def _classify_finite(
         # everywhere, so Sec. 4.5's "distinctively higher than on average" has no contrast:
         # foliage alone is vegetation
         steps = [("stems", L.TRUNK, lambda t: t["post"])] + [s for s in steps if s[0] not in ("posts", "stems")]
+        steps[-1] = ("vegetation", L.VEGETATION, lambda t: t["foliage"])
+    elif e.canopy_share is not None and len(foliage) and foliage.mean() >= e.canopy_share:
+        # a wooded tile in urban mode: the same, measured (foliage is most of the scene)
         steps[-1] = ("vegetation", L.VEGETATION, lambda t: t["foliage"])
     for name, code, step in steps:
         if len(idx):
