@@ -15,6 +15,7 @@ terrace or a quarry, and a 0.2 m point tolerance drops most points of a cell on 
 
 from __future__ import annotations
 
+import json
 import warnings
 
 import numpy as np
@@ -183,3 +184,19 @@ def test_wooded_tiles_in_urban_mode_take_their_foliage_as_vegetation(tiles, case
     paper_rule = scores(classify_map(c.points, MapClassConfig(vegetation=VegetationParams(canopy_share=None))).labels)
     assert now[0] >= 0.95 and now[1] >= 0.85, now
     assert paper_rule[1] < 0.4, paper_rule
+
+
+def test_mapclass_says_when_the_ground_followed_the_terrain(tiles, tmp_path):
+    from typer.testing import CliRunner
+
+    from data_tools.sim.airborne import write_cloud
+    from prc_slam.cli import app
+
+    laz = write_cloud(tiles["hills"], tmp_path / "hills.laz")
+    res = CliRunner().invoke(
+        app, ["mapclass", str(laz), "--out", str(tmp_path / "o"), "--json", str(tmp_path / "m.json")]
+    )
+    assert res.exit_code == 0, res.output
+    assert "ground: terrain-relative tests" in res.output, res.output
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["density"]["terrain_ground_share"] == 1.0 and m["per_class"]["ground"]["recall"] >= 0.93

@@ -58,6 +58,12 @@ def print_mapclass(metrics: dict[str, Any], title: str) -> None:
     )
     console.print("stages (s): " + ", ".join(f"{k} {v:.2f}" for k, v in metrics["seconds_per_stage"].items()))
     console.print("points per class: " + ", ".join(f"{k} {v:,}" for k, v in metrics["counts"].items()))
+    terrain = (metrics.get("density") or {}).get("terrain_ground_share")
+    if terrain:
+        where = "" if terrain == 1 else f" on {terrain:.0%} of the tiles, the paper's level-ground test on the others"
+        console.print(
+            f"ground: terrain-relative tests (slopes, terraces; config ground.terrain){where}", highlight=False
+        )
     if metrics.get("points_not_written"):
         console.print(
             f"{metrics['points_not_written']:,} points without finite coordinates (no_return) are not in the LAS "
