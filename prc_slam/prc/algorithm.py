@@ -294,7 +294,7 @@ def prc_block(
     # Step 6 for spinning sensors: the column ground's first steps need no segments; on large
     # blocks they run beside steps 3-4 (on another numba thread)
     urban = config.mode == "urban"
-    columns = urban and _column_ground_applies(config, sensor)
+    columns = _column_ground_applies(config, sensor)
 
     def segmentation() -> tuple:
         return _segment(ranges, supported, grad, config, wrap, state, carry)
@@ -326,7 +326,8 @@ def prc_block(
     # Step 5: R_b. Points of small segments, and supported points left unlabelled by hole
     # filling that the dilation reached, take their V_b label; smooth segments keep H_b.
     # Step 6: classification. Urban: the largest smooth patch is ground, other smooth patches
-    # building; forest: smooth patches are trunks, ground comes from eq. (12).
+    # building; forest: smooth patches are trunks, ground comes from eq. (12). Spinning sensors
+    # (ground "auto" / "columns"): the column ground of prc.ground in either mode.
     ground = 0
     if urban and not columns:
         is_smooth = seg_area >= config.A
@@ -363,7 +364,7 @@ def prc_block(
         if columns:
             ground_error = str(head)
             log.debug("PRC column ground: no ground in this sweep: %s", head)
-    if not urban:
+    if not urban and ground_result is None:  # forest: eq. (12), unless the column ground found it
         axis = config.density_axis or ("rows" if wrap else "columns")
         out[column_density_ground(smooth, config, axis) & supported] = L.GROUND
 

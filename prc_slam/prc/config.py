@@ -61,8 +61,9 @@ class PRCConfig(BaseModel):
     wrap_columns: bool | None = Field(None, description="columns wrap around (None: yes for spinning sensors)")
     ground: Literal["largest_smooth", "columns", "auto"] = Field(
         "largest_smooth",
-        description="urban ground: the paper's largest smooth patch (Sec. II-F), the column ground of "
-        "prc.ground (spinning sensors), or auto (columns for spinning sensors, the paper's rule for profilers)",
+        description="ground: the paper's rule (urban: the largest smooth patch, forest: eq. (12); Sec. II-F), the "
+        "column ground of prc.ground (spinning sensors; in forest mode too), or auto (columns for spinning sensors, "
+        "the paper's rule for profilers)",
     )
     ground_slope_deg: float = Field(
         7.0, ge=0.0, lt=45.0, description="column ground: steepest ground slope between a beam and the last ground"
