@@ -87,8 +87,20 @@ def hdl64_altitudes() -> np.ndarray:
     return np.radians(np.concatenate([np.linspace(2.0, -8.33, 32), np.linspace(-8.83, -24.9, 32)]))
 
 
+#: more spinning sensors, as beam layouts of their data sheets' vertical fields of view (uniform beam
+#: spacing; images azimuth-aligned, as the readers give Ouster sweeps): name -> (top and bottom beam
+#: elevation in deg, beams, columns, mount height, range sigma, min and max range in m)
+SPINNING = {
+    "hdl32": (10.67, -30.67, 32, 2170, 1.84, 0.02, 1.0, 100.0),  # Velodyne HDL-32E (nuScenes)
+    "os1-64": (22.5, -22.5, 64, 1024, 1.9, 0.03, 0.3, 120.0),  # Ouster OS1-64 (rev 6)
+    "os0-128": (45.0, -45.0, 128, 1024, 1.9, 0.03, 0.3, 50.0),  # Ouster OS0-128
+    "os2-128": (11.25, -11.25, 128, 2048, 1.9, 0.03, 1.0, 200.0),  # Ouster OS2-128
+}
+
+
 def make_sensor(name: str, lines_per_frame: int | None = None) -> SimSensor:
-    """One of ``hdl64``, ``vlp16``, ``profiler-urban``, ``profiler-backpack``."""
+    """One of :data:`SENSORS`: ``hdl64``, ``vlp16``, ``profiler-urban``, ``profiler-backpack``
+    and the beam layouts of :data:`SPINNING`."""
     if name == "hdl64":
         return SimSensor(
             name, SpinningSensor.create(hdl64_altitudes(), 2048, sweep_period=0.1), 0.1, 1.73, 0.02, 0.9, 120.0, 0.05
@@ -120,11 +132,15 @@ def make_sensor(name: str, lines_per_frame: int | None = None) -> SimSensor:
         model = ProfilerSensor.create(rows, 4270, angle0=0.0, line_rate=rate, line_spacing=1.3 / rate, mount=mount)
         dead = (np.radians(270 - 27.5), np.radians(270 + 27.5))  # 55 deg towards the ground
         return SimSensor(name, model, rows / rate, 2.0, 0.01, 0.5, 80.0, 0.3, dead_angle=dead, platform="walking")
+    if name in SPINNING:
+        top, bottom, beams, cols, height, sigma, near, far = SPINNING[name]
+        model = SpinningSensor.create(np.radians(np.linspace(top, bottom, beams)), cols, sweep_period=0.1)
+        return SimSensor(name, model, 0.1, height, sigma, near, far, 0.05)
     if name in CLOUD_SENSORS:
         raise ValueError(f"{name} gives a point cloud, not a range-image stream: use data_tools.sim.airborne")
-    raise ValueError(f"unknown sensor {name!r}; choose from hdl64, vlp16, profiler-urban, profiler-backpack")
+    raise ValueError(f"unknown sensor {name!r}; choose from {', '.join(SENSORS)}")
 
 
-SENSORS = ("hdl64", "vlp16", "profiler-urban", "profiler-backpack")
+SENSORS = ("hdl64", "vlp16", *SPINNING, "profiler-urban", "profiler-backpack")
 #: airborne and terrestrial scanners: unorganised clouds with per-point truth (data_tools.sim.airborne)
 CLOUD_SENSORS = ("als", "tls")

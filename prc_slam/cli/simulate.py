@@ -22,6 +22,10 @@ class SceneKind(str, Enum):
 class SensorKind(str, Enum):
     hdl64 = "hdl64"
     vlp16 = "vlp16"
+    hdl32 = "hdl32"
+    os1_64 = "os1-64"
+    os0_128 = "os0-128"
+    os2_128 = "os2-128"
     profiler_urban = "profiler-urban"
     profiler_backpack = "profiler-backpack"
     als = "als"
