@@ -74,6 +74,28 @@ _KNOWN_SEMANTIC[list(L.SEMANTIC_KITTI_TO_CODE)] = True
 UNKNOWN_SEMANTIC_SHARE = 0.05
 
 
+#: a median step between frame times above this (s) is taken for times in other units (warned)
+MAX_FRAME_STEP = 10.0
+
+
+def warn_unless_seconds(times: np.ndarray, source: str | Path) -> bool:
+    """Warn when the frame times are more than :data:`MAX_FRAME_STEP` apart (median step): a
+    ``times.txt`` in milliseconds or nanoseconds (ROS stamps) is read as seconds, which makes the
+    odometry guard's speed bound meaningless and the TUM trajectories' times wrong. Returns
+    whether it warned."""
+    step = float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+    if step <= MAX_FRAME_STEP:
+        return False
+    log.warning(
+        "%s: the frames are %.4g s apart (median step): times not in seconds? A 10 Hz sensor's frames are 0.1 s "
+        "apart (100 in milliseconds, 1e8 in nanoseconds); the times are read as seconds (the odometry's speed "
+        "bound, the TUM trajectories)",
+        source,
+        step,
+    )
+    return True
+
+
 def read_calib_tr(path: str | Path) -> np.ndarray:
     """The ``Tr`` entry of a KITTI ``calib.txt`` (Velodyne → camera 0) as a 4x4 matrix."""
     path = Path(path)
@@ -145,6 +167,7 @@ class KittiSequence(SequenceBase):
         if self.times is not None:
             self.times = self._per_file(self.times, self.root / "times.txt", "times")
             warn_time_gaps(self.times, self.root / "times.txt")
+            warn_unless_seconds(self.times, self.root / "times.txt")
         self.poses = None
         if (self.root / "poses.txt").is_file():
             cam = read_kitti_poses(self.root / "poses.txt")
@@ -157,12 +180,19 @@ class KittiSequence(SequenceBase):
         KITTI numbers its sweeps from 0 and gives one line per sweep. A folder holding only some of
         them (``000010.bin``..``000015.bin``, or numbers with gaps) beside the full files takes line
         ``k + 1`` for ``k.bin`` (before, the first lines were given to whatever sweeps there were: a
-        silently wrong ground truth). Files with other names take the lines in order."""
+        silently wrong ground truth). Files with other names take the lines in order, warned when
+        there are more lines than files (which lines belong to them cannot be told)."""
         n = len(self.files)
         if len(rows) < n:
             raise DataError(f"{path}: {len(rows)} {what} for {n} scans")
         stems = [f.stem for f in self.files]
         numbers = np.array([int(s) for s in stems]) if all(s.isdigit() for s in stems) else None
+        if numbers is None and len(rows) > n:
+            log.warning(
+                "%s: %d %s for %d scans whose names are not frame numbers (e.g. %s.bin): the first %d lines are "
+                "taken; name the scans by their line (000000.bin, ...) or give one line per scan",
+                path, len(rows), what, n, stems[0], n,
+            )  # fmt: skip
         if numbers is None or np.array_equal(numbers, np.arange(n)):
             return rows[:n]
         if len(rows) == n:  # one line per sweep present: in order

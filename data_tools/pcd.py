@@ -706,6 +706,8 @@ class SweepFolder(SequenceBase):
             times = times + frame_time
         elif times is not None:
             frame_time = float(np.nanmin(times))
+        else:  # no time at all: sweep i at i periods (its index, not how many sweeps were read before)
+            frame_time = i * (self._period or self.sweep_period)
         intensity = None
         if inten_name is not None and fields[inten_name].ndim == 1:
             intensity = np.asarray(fields[inten_name], dtype=np.float32)

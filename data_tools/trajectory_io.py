@@ -123,7 +123,7 @@ def warn_time_gaps(times: np.ndarray, source: str | Path) -> int:
         k = int(gaps[np.argmax(step[gaps])])
         log.warning(
             "%s: %d gap%s in the frame times, the largest %.3g s between frames %d and %d (%.1f x the median "
-            "step of %.3g s): frames missing? Odometry predicts the motion from the previous step",
+            "step of %.3g s): frames missing? Odometry stretches its constant-velocity prediction over the gap",
             source,
             len(gaps),
             "s" if len(gaps) > 1 else "",

@@ -457,11 +457,12 @@ class ClassAwareOdometry(GuardedOdometry):
         sigma = self.adaptive_threshold.get_threshold()
         if not np.isfinite(sigma) or sigma <= 0:
             raise OdometryFailure(f"adaptive threshold is {sigma}")
-        initial = self.last_pose @ self.last_delta
+        motion = self._predicted_motion(self.last_delta)
+        initial = self.last_pose @ motion
         counts = np.zeros(len(GROUP_NAMES), np.int64)
         if self.map.n and len(source) < MIN_SOURCE_POINTS:
             check_pose(initial, self.last_pose, dt, self.config.guard, "the prediction")
-            self.last_pose = initial  # the constant velocity carries on
+            self.last_pose, self.last_delta = initial, motion  # the constant velocity carries on
             self.correspondences.append(counts)
             self.iterations.append(0)
             return self._coast(len(source), initial, sigma, dropped)

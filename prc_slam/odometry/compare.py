@@ -172,8 +172,9 @@ class CompareResult:
             if self.gt_poses is not None and n:
                 est = self.estimate_in_world(name)
                 gt = self.gt_poses[:n]
-                m["ate_rmse_m"] = E.ate_rmse(est, gt)
-                m["rpe_trans_m"] = float(np.mean(E.rpe(est, gt))) if n > 1 else 0.0
+                # one pose has no error to measure (it is placed at the ground truth): null, not 0
+                m["ate_rmse_m"] = E.ate_rmse(est, gt) if n > 1 else None
+                m["rpe_trans_m"] = float(np.mean(E.rpe(est, gt))) if n > 1 else None
                 m["kitti_trans_pct"], m["kitti_rot_deg_per_m"] = E.kitti_errors(est, gt)
                 dist = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1).sum()
                 m["path_length_m"] = float(dist)
@@ -281,9 +282,23 @@ def warm_up_kernels(config: Config) -> None:
     residuals(pts, np.zeros(64, np.int64), *gmap.index(), 1.0, 1.0, np.eye(4))
 
 
-def _frame_time(scan: Scan) -> float | None:
+def _frame_time(scan: Scan, times: np.ndarray | None = None) -> float | None:
+    """The instant every variant's pose of ``scan`` refers to: the frame's own time
+    (``scan.meta["frame_time"]``), else the middle of the time span of all its points
+    (``times``), else None (each odometry's clock then goes on from its previous frames).
+
+    The odometries' clocks (:class:`~prc_slam.odometry.kiss.FrameClock`) take the same middle of
+    the points they are given; taken here over every point, all variants' poses refer to one
+    instant, the instant written to ``frames.txt`` and the TUM trajectories (Ouster sweeps carry
+    no frame time: those files said 0, 1, 2 s, the frame index, for sweeps 0.1 s apart)."""
     t = scan.meta.get("frame_time")
-    return None if t is None else float(t)
+    if t is not None and np.isfinite(t):
+        return float(t)
+    if times is None:
+        return None
+    finite = np.asarray(times, dtype=np.float64)
+    finite = finite[np.isfinite(finite)]
+    return 0.5 * (float(finite.min()) + float(finite.max())) if len(finite) else None
 
 
 class OdometryVariants:
@@ -353,7 +368,7 @@ class OdometryVariants:
             return FrameRecord(frame, index, {}, {}, self.runs)
         pts = scan.points()
         t = scan.point_times()
-        frame_time = _frame_time(scan)
+        frame_time = _frame_time(scan, t)
         kept: dict[str, np.ndarray] = {}
         poses: dict[str, np.ndarray] = {}
         labels = frame.point_labels() if self.needs_prc else None
@@ -415,9 +430,19 @@ class OdometryVariants:
             self._credit(self.runs, busy, ahead)
         self._cross_check(index, pts, poses)
         self.gt.append(scan.gt_pose)
-        self.times.append(frame_time if frame_time is not None else float(index))
+        self.times.append(self._time_of(frame_time, poses))
         self.names.append(scan.name)
         return FrameRecord(frame, index, kept, poses, self.runs)
+
+    def _time_of(self, frame_time: float | None, poses: dict[str, np.ndarray]) -> float:
+        """The time of this frame in the outputs: ``frame_time``, else the time a variant that
+        registered the frame gave it (its clock goes on at the last interval), else the previous
+        frame's plus 0.1 s."""
+        if frame_time is not None:
+            return frame_time
+        for name in poses:
+            return self.runs[name].odometry.clock.times[-1]
+        return self.times[-1] + 0.1 if self.times else 0.0
 
     @staticmethod
     def _credit(runs: dict[str, VariantRun], busy: dict[str, list[tuple[float, float]]], ahead: NextFrame) -> None:
