@@ -334,13 +334,12 @@ def detect_ground(
         info["relief"] = terrain_relief(zmin, cell)
         terrain_relative = info["relief"] >= min_relief
     info["terrain"] = bool(terrain_relative)
-    if not terrain_relative:  # the paper's Sec. 4.1
-        zlocal = minimum_window(zmin, w)
-        votes = scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local)
-        ground_cell = votes > len(DIRECTIONS) - votes
-        return _point_mask(pts, lo[0], lo[1], 1.0 / cell, zmin, ground_cell, np.full(zmin.shape, tolerance))
-    zlocal = opening_window(zmin, w)
-    votes = scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, terrain_slope)
+    slope = terrain_slope if terrain_relative else 0.0  # 0: the paper's Sec. 4.1
+    zlocal = opening_window(zmin, w) if terrain_relative else minimum_window(zmin, w)
+    votes = scan_line_votes(zmin, zlocal, cell, max_slope, max_step, max_above_local, slope)
     ground_cell = votes > len(DIRECTIONS) - votes
-    tol = slope_tolerance(zmin, ground_cell, cell, tolerance, max_step, terrain_slope, np.empty_like(zmin))
+    if terrain_relative:
+        tol = slope_tolerance(zmin, ground_cell, cell, tolerance, max_step, terrain_slope, np.empty_like(zmin))
+    else:
+        tol = np.full(zmin.shape, tolerance)
     return _point_mask(pts, lo[0], lo[1], 1.0 / cell, zmin, ground_cell, tol)
