@@ -150,18 +150,19 @@ def test_auto_takes_the_terrain_tests_where_the_terrain_is_not_level(tiles):
     dense = np.concatenate([slope.points + rng.normal(0, 0.02, slope.points.shape) for _ in range(16)])
     truth = np.tile(slope.labels, 16)
     auto = classify_map(dense)
-    assert auto.scale.rho > 100 and auto.ground["terrain"] and auto.ground["relief"] > 0.3
+    assert auto.scale.rho > 100 and auto.choices["terrain"] and auto.choices["relief"] > 0.3
     p, r = ground_scores(auto.labels == L.GROUND, truth)
     assert p >= 0.95 and r >= 0.9, (p, r)
     paper = classify_map(dense, MapClassConfig(ground=GroundParams(terrain="off")))
-    assert not paper.ground["terrain"] and ground_scores(paper.labels == L.GROUND, truth)[1] < 0.1
+    assert not paper.choices["terrain"] and ground_scores(paper.labels == L.GROUND, truth)[1] < 0.1
     flat = tiles["flat"]
     dense_flat = np.concatenate([flat.points + rng.normal(0, 0.02, flat.points.shape) for _ in range(16)])
     res = classify_map(dense_flat)
-    assert res.scale.rho > 100 and not res.ground["terrain"] and res.ground["relief"] < 0.05
-    assert classify_map(flat.points).ground == {"terrain": True}  # airborne density: no relief asked
+    assert res.scale.rho > 100 and not res.choices["terrain"] and res.choices["relief"] < 0.05
+    airborne = classify_map(flat.points).choices
+    assert airborne["terrain"] and "relief" not in airborne  # airborne density: no relief asked
     off = MapClassConfig(ground=GroundParams(terrain="off"))
-    assert classify_map(flat.points, off).ground == {"terrain": False} and paper_config().ground.terrain == "off"
+    assert classify_map(flat.points, off).choices["terrain"] is False and paper_config().ground.terrain == "off"
 
 
 @pytest.mark.parametrize("case", ["hills", "forest_slope", "river"])
@@ -197,6 +198,7 @@ def test_mapclass_says_when_the_ground_followed_the_terrain(tiles, tmp_path):
         app, ["mapclass", str(laz), "--out", str(tmp_path / "o"), "--json", str(tmp_path / "m.json")]
     )
     assert res.exit_code == 0, res.output
-    assert "ground: terrain-relative tests" in res.output, res.output
+    assert "ground: terrain-relative tests" in res.output and "vegetation: the foliage alone" in res.output, res.output
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["density"]["terrain_ground_share"] == 1.0 and m["per_class"]["ground"]["recall"] >= 0.93
+    assert m["density"]["canopy_share"] == 1.0  # the hills tile is wooded

@@ -64,6 +64,14 @@ def print_mapclass(metrics: dict[str, Any], title: str) -> None:
         console.print(
             f"ground: terrain-relative tests (slopes, terraces; config ground.terrain){where}", highlight=False
         )
+    wooded = (metrics.get("density") or {}).get("canopy_share")
+    if wooded:
+        where = "" if wooded == 1 else f" on {wooded:.0%} of the tiles"
+        console.print(
+            f"vegetation: the foliage alone{where} (wooded: foliage is half the points off the ground or more; "
+            "config vegetation.canopy_share)",
+            highlight=False,
+        )
     if metrics.get("points_not_written"):
         console.print(
             f"{metrics['points_not_written']:,} points without finite coordinates (no_return) are not in the LAS "

@@ -185,9 +185,10 @@ def paper_config() -> MapClassConfig:
 class MapResult:
     """Labels and metrics per input point, stage times (s), the count of non-finite points, the
     sizes and threshold used (``scale``), the share of points under the density threshold, the
-    messages about the input (also issued as :class:`DensityWarning`) and how the ground was found
-    (``ground``: ``terrain``, whether the terrain-relative tests ran, and ``relief``, the
-    terrain's median slope, when measured)."""
+    messages about the input (also issued as :class:`DensityWarning`) and what the cloud decided
+    (``choices``: ``terrain``, whether the ground took the terrain-relative tests, ``relief``, the
+    terrain's median slope, when measured, and ``canopy``, the share of foliage off the ground,
+    when a wooded tile took foliage alone as vegetation)."""
 
     labels: np.ndarray
     segment: np.ndarray
@@ -198,7 +199,7 @@ class MapResult:
     scale: DensityScale | None = None
     below_share: float = 0.0
     messages: list[str] = field(default_factory=list)
-    ground: dict = field(default_factory=dict)
+    choices: dict = field(default_factory=dict)
 
 
 class DensityWarning(UserWarning):
@@ -253,8 +254,8 @@ def classify_map(points: np.ndarray, config: MapClassConfig | None = None) -> Ma
         pts = _take_rows(pts, order)
         clock.lap("order")
     scale = density_scale(pts, cfg)
-    ground: dict = {}
-    lab, seg, density, vert = _classify_finite(pts, cfg, clock, scale, ground)
+    choices: dict = {}
+    lab, seg, density, vert = _classify_finite(pts, cfg, clock, scale, choices)
     if order is not None:
         lab, seg, density, vert = _unpermute(order, lab, seg, density, vert)
     below = float(np.mean(density < scale.threshold)) if len(density) else 0.0
@@ -264,10 +265,10 @@ def classify_map(points: np.ndarray, config: MapClassConfig | None = None) -> Ma
         messages.append(below_message(below, scale.threshold, median, scale.relative, cfg.min_density))
         warnings.warn(messages[-1], DensityWarning, stacklevel=2)
     if not n_bad:
-        return MapResult(lab, seg, density, vert, clock.seconds, 0, scale, below, messages, ground)
+        return MapResult(lab, seg, density, vert, clock.seconds, 0, scale, below, messages, choices)
     out = MapResult(
         np.full(len(finite), L.NO_RETURN, np.uint8), np.full(len(finite), -1, np.int64),
-        np.zeros(len(finite)), np.zeros(len(finite)), clock.seconds, n_bad, scale, below, messages, ground,
+        np.zeros(len(finite)), np.zeros(len(finite)), clock.seconds, n_bad, scale, below, messages, choices,
     )  # fmt: skip
     out.labels[finite], out.segment[finite], out.density[finite], out.verticality[finite] = lab, seg, density, vert
     return out
@@ -426,7 +427,7 @@ def density_scale(points: np.ndarray, cfg: MapClassConfig) -> DensityScale:
 
 
 def _classify_finite(
-    pts: np.ndarray, cfg: MapClassConfig, clock: _Clock, scale: DensityScale, ground_info: dict
+    pts: np.ndarray, cfg: MapClassConfig, clock: _Clock, scale: DensityScale, choices: dict
 ) -> tuple[np.ndarray, ...]:
     n = len(pts)
     labels = np.full(n, L.UNCLASSIFIED, dtype=np.uint8)
@@ -477,7 +478,7 @@ def _classify_finite(
         terrain = {"on": True, "off": False}.get(g.terrain, True if airborne else "auto")
         mask = detect_ground(
             p, scale.ground_cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance,
-            terrain_relative=terrain, min_relief=g.min_relief, info=ground_info,
+            terrain_relative=terrain, min_relief=g.min_relief, info=choices,
         )  # fmt: skip
         t = time.perf_counter()
         v = M.verticality(normals, dgrid.voxel, dgrid.n_voxels, normal_of, idx)
@@ -568,6 +569,7 @@ def _classify_finite(
         steps[-1] = ("vegetation", L.VEGETATION, lambda t: t["foliage"])
     elif e.canopy_share is not None and len(foliage) and foliage.mean() >= e.canopy_share:
         # a wooded tile in urban mode: the same, measured (foliage is most of the scene)
+        choices["canopy"] = float(foliage.mean())
         steps[-1] = ("vegetation", L.VEGETATION, lambda t: t["foliage"])
     for name, code, step in steps:
         if len(idx):

@@ -155,8 +155,9 @@ def _light(result: MapResult, n_own: int) -> MapResult:
 
 def density_summary(results: list[MapResult]) -> dict[str, Any]:
     """Surface density, sizes and thresholds used (min / median / max over tiles), the share
-    of points under the threshold, the share of the tiles whose ground took the terrain-relative
-    tests (:class:`~prc_slam.mapclass.classify.GroundParams`), and the messages."""
+    of points under the threshold, the shares of the tiles whose ground took the terrain-relative
+    tests (:class:`~prc_slam.mapclass.classify.GroundParams`) and whose vegetation was their
+    foliage alone (wooded: ``VegetationParams.canopy_share``), and the messages."""
     scales = [r.scale for r in results if r.scale is not None]
     weights = np.array([len(r.density) for r in results], dtype=np.float64)
     out: dict[str, Any] = {"relative": bool(scales[0].relative) if scales else None}
@@ -166,8 +167,9 @@ def density_summary(results: list[MapResult]) -> dict[str, Any]:
             out[key] = {"min": float(vals.min()), "median": float(np.median(vals)), "max": float(vals.max())}
     shares = np.array([r.below_share for r in results])
     out["below_threshold_share"] = float((shares * weights).sum() / weights.sum()) if weights.sum() else 0.0
-    terrain = [bool(r.ground.get("terrain")) for r in results if r.ground]
-    out["terrain_ground_share"] = float(np.mean(terrain)) if terrain else 0.0  # of the pieces
+    pieces = [r.choices for r in results if r.choices]
+    out["terrain_ground_share"] = float(np.mean([bool(c.get("terrain")) for c in pieces])) if pieces else 0.0
+    out["canopy_share"] = float(np.mean(["canopy" in c for c in pieces])) if pieces else 0.0  # wooded pieces
     out["messages"] = [m for r in results for m in r.messages]
     return out
 
