@@ -11,13 +11,28 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import threading
 
 _interrupted = False
+#: seconds after which a Ctrl-C that arrived inside a native callback is delivered again
+REDELIVER_S = 0.05
+
+
+def _in_native_callback(frame) -> bool:
+    """Whether the signal arrived in Python code that native code called back: llvmlite's ctypes
+    callbacks while numba compiles, where a raised exception is printed as "Exception ignored ...
+    Traceback" and dropped."""
+    return frame is not None and "llvmlite" in frame.f_code.co_filename
 
 
 def _on_sigint(signum, frame):
     global _interrupted
     _interrupted = True
+    if _in_native_callback(frame):  # delivered again once the callback has returned
+        timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signal.SIGINT))
+        timer.daemon = True
+        timer.start()
+        return
     raise KeyboardInterrupt
 
 

@@ -192,3 +192,26 @@ def test_ctrl_c_at_any_moment_is_one_line_and_130(tmp_path, sim):
         assert proc.returncode == 130, err
         assert "Traceback" not in err and "leaked" not in err, err
         assert [line for line in err.splitlines() if line.startswith("error:")] == ["error: interrupted"], err
+
+
+def test_ctrl_c_inside_a_native_callback_is_delivered_again(monkeypatch):
+    """Before: a Ctrl-C that landed in llvmlite's ctypes callback while numba compiled (a cold
+    cache) raised KeyboardInterrupt there, which Python printed ("Exception ignored on calling
+    ctypes callback function ... Traceback") and dropped; the run went on to its end. Now the
+    interrupt is sent again shortly after, once the callback has returned; elsewhere it is raised."""
+    from types import SimpleNamespace
+
+    from prc_slam import launcher
+
+    sent = []
+    monkeypatch.setattr(launcher, "REDELIVER_S", 0.0)
+    monkeypatch.setattr(launcher, "_interrupted", False)  # (restored after the test)
+    monkeypatch.setattr(launcher.os, "kill", lambda pid, sig: sent.append((pid, sig)))
+    frame = SimpleNamespace(f_code=SimpleNamespace(co_filename="/x/site-packages/llvmlite/binding/executionengine.py"))
+    launcher._on_sigint(signal.SIGINT, frame)  # no exception
+    deadline = time.time() + 5
+    while not sent and time.time() < deadline:
+        time.sleep(0.01)
+    assert sent == [(os.getpid(), signal.SIGINT)] and launcher._interrupted
+    with pytest.raises(KeyboardInterrupt):
+        launcher._on_sigint(signal.SIGINT, SimpleNamespace(f_code=SimpleNamespace(co_filename="/work/prc_slam/x.py")))

@@ -204,7 +204,17 @@ class OnlineDetector:
                 return curbs
 
             def spinning_cars() -> SpinningCars:
-                veg = coarse.codes == L.VEGETATION
+                sp = self.spinning_params
+                gap = (
+                    float(np.degrees(np.median(np.abs(np.diff(np.sort(scan.sensor.altitude))))))
+                    if scan.shape[0] > 1
+                    else 0.0
+                )
+                if sp.vegetation_step > 0 and gap < sp.vegetation_gap:  # step 6's vegetation share (spinning.py)
+                    veg_params = CoarseParams(min_step=sp.vegetation_step, centred=True)
+                    veg = coarse_classify(scan, veg_params, t_prime=False).codes == L.VEGETATION
+                else:
+                    veg = coarse.codes == L.VEGETATION
                 return detect_cars_spinning(scan, ground, lines, line_heights, veg, self.spinning_params, zg)
 
             (cars, curbs), _ = side_by_side(spinning_cars, all_curbs)  # the cars do not use the curbs

@@ -124,6 +124,13 @@ class SpinningCarParams:
     min_area: bool = True  # footprint as the least-area rectangle (False: along the principal axis)
     top_floor: float = 1.0  # m above ground: lower column tops do not count in high_share (0: all count; step 4)
     grazing_links: int = 2  # columns linking two segments across a grazing surface (step 5b; 0: off)
+    # m, baseline of the signed angles behind step 6's vegetation share on sensors whose median beam gap is
+    # under vegetation_gap (deg; finer than an HDL-64's 1/3 deg): at an OS2-128's 0.18 deg a car face's
+    # returns lie 3 cm apart at 10 m, its range noise, and cars were called vegetation (0: Sec. 4's).
+    # On KITTI's HDL-64 the baseline would smooth hedges into cars (vehicle P 0.87 -> 0.77)
+    vegetation_step: float = 0.1
+    vegetation_gap: float = 0.25
+    hidden_floor: bool = True  # step 5's bottom taken above where the lowest beam passes (False: above the ground)
 
 
 @njit(cache=True, nogil=True)
@@ -252,8 +259,9 @@ def outline_tops(seg, n, valid, high, xyz, rng, alt, min_gate, gate_factor, max_
 
 @njit(cache=True, nogil=True)
 def segment_features(
-    seg, n, xyz, height, valid, baseline, min_area=True, area_points=0, area_top=np.inf, area_bottom=np.inf
-):
+    seg, n, xyz, height, valid, baseline, min_area=True, area_points=0, area_top=np.inf, area_bottom=np.inf,
+    floor=None,
+):  # fmt: skip
     """Per segment (index 1..n): points, lowest and highest height above ground, footprint
     length / width (of the least-area rectangle over 18 headings; ``min_area=False``: along the
     principal axis), thickness (10-90 % spread across that
@@ -262,7 +270,11 @@ def segment_features(
     The least-area rectangle is searched only for segments of at least ``area_points`` returns
     whose 90 % height is at most ``area_top`` and whose lowest return at most ``area_bottom``
     (what a car must pass anyway; buildings and trees, most of the returns, fail it): the others
-    keep the extents along the principal axis."""
+    keep the extents along the principal axis.
+
+    ``floor`` (rows, cols; optional): per slot, how high above the ground the sensor's lowest beam
+    passes at that slot's distance; the lowest height is then taken above it (what the sensor
+    cannot see below a return does not count against the segment's bottom, step 5)."""
     R, C = seg.shape
     cnt = np.zeros(n + 1)
     sx = np.zeros(n + 1)
@@ -287,7 +299,10 @@ def segment_features(
             sxx[k] += x * x
             sxy[k] += x * y
             syy[k] += y * y
-            hlo[k] = min(hlo[k], height[r, c])
+            if floor is None:
+                hlo[k] = min(hlo[k], height[r, c])
+            else:
+                hlo[k] = min(hlo[k], height[r, c] - floor[r, c])
             hhi[k] = max(hhi[k], height[r, c])
             hh[k, min(nh - 1, max(0, int(height[r, c] / 0.1)))] += 1
     mx = sx / np.maximum(cnt, 1)
@@ -641,11 +656,11 @@ def segment_tops(seg, n, height, vegetation):
     return top_at, cnt, veg.astype(np.float64)
 
 
-def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation, p):
+def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation, p, floor=None):
     """Steps 4-6 on the segments 1..n of ``seg_o`` (rows in elevation order): the accepted mask
     per segment (index 0 unused, False) and the features behind it."""
     cnt, hlo, hhi, top90, length, width, thick, rough, n_rough = segment_features(
-        seg_o, n, xyz, height, valid, p.ring_baseline, p.min_area, p.min_points, p.max_top, p.max_bottom
+        seg_o, n, xyz, height, valid, p.ring_baseline, p.min_area, p.min_points, p.max_top, p.max_bottom, floor
     )
     share = high_touch / np.maximum(tops, 1)
     cols = seg_o.shape[1]
@@ -675,7 +690,7 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     return ok, feats
 
 
-def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rng, gaps, vegetation, p):
+def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rng, gaps, vegetation, p, floor=None):
     """Step 5b: a face (a segment standing on the ground, its lowest return within ``max_bottom``,
     but too low for a car: ``roof``, its top plus the beam gap allowance, under ``min_top``) and
     the segments above it (a roof, a bonnet) linked to it across a grazing surface on at least
@@ -715,7 +730,7 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
     ht_g, tops_g = outline_tops(
         seg_g, g, valid, high, xyz, rng, alt, p.min_gate, p.gate_factor, p.max_gate, height, p.top_floor
     )
-    ok_g, _ = _judge(seg_g, g, ht_g, tops_g, xyz, height, valid, rng, gaps, vegetation, p)
+    ok_g, _ = _judge(seg_g, g, ht_g, tops_g, xyz, height, valid, rng, gaps, vegetation, p, floor)
     # final ids: accepted groups first, then accepted segments outside an accepted group
     take_g = ok_g[gid] & multi
     alone = ok & ~take_g
@@ -799,9 +814,19 @@ def detect_cars_spinning(
     gaps = np.empty(rows)
     gaps[:-1] = np.diff(alt) if rows > 1 else 0.0
     gaps[-1] = 0.0
-    ok, feats = _judge(seg_o, n, high_touch, tops, o_xyz, h_o, o_valid, rng, gaps, veg_o, p)
+    floor = None
+    if p.hidden_floor:
+        # a narrow field of view (an OS2's lowest beam at -11.25 deg passes 0.9 m above the road 5 m
+        # out) does not see a near car's lower body: its bottom is measured from where the lowest beam
+        # passes (step 5, "cars stand on the ground", as far as the sensor can tell)
+        zg_o = zg.reshape(rows, cols)[by_elevation]
+        rho = np.hypot(o_xyz[..., 0], o_xyz[..., 1])
+        with np.errstate(invalid="ignore"):
+            floor = np.maximum(rho * np.tan(alt[0]) - zg_o, 0.0)
+        floor = np.where(np.isfinite(floor), floor, 0.0)
+    ok, feats = _judge(seg_o, n, high_touch, tops, o_xyz, h_o, o_valid, rng, gaps, veg_o, p, floor)
     inst_o, merged = _merge_grazing(
-        seg_o, n, ok, feats["bottom"], feats["roof"], high, alt, o_xyz, h_o, o_valid, rng, gaps, veg_o, p
+        seg_o, n, ok, feats["bottom"], feats["roof"], high, alt, o_xyz, h_o, o_valid, rng, gaps, veg_o, p, floor
     )
     if p.down_to > 0:
         inst_o = grow_down(inst_o, o_valid, o_xyz, h_down[by_elevation], alt, p.down_to, p.min_gate)
