@@ -64,6 +64,13 @@ def print_mapclass(metrics: dict[str, Any], title: str) -> None:
         console.print(
             f"ground: terrain-relative tests (slopes, terraces; config ground.terrain){where}", highlight=False
         )
+    raised = (metrics.get("density") or {}).get("raised_ground_cells")
+    if raised:
+        console.print(
+            f"ground: in {raised:,} cells the lowest points were alone at their height (returns under the surface?) "
+            "and the cell's height was taken from the lowest point with company (config ground.min_support)",
+            highlight=False,
+        )
     wooded = (metrics.get("density") or {}).get("canopy_share")
     if wooded:
         where = "" if wooded == 1 else f" on {wooded:.0%} of the tiles"

@@ -69,6 +69,12 @@ class GroundParams(_Params):
     )
     terrain_max_density: float = Field(100.0, ge=0, description="auto: surface points/m^2 of an airborne cloud")
     min_relief: float = Field(0.05, ge=0, description="auto: median slope of the terrain (rise/m) not level")
+    min_support: int = Field(
+        5,
+        ge=1,
+        description="a cell's terrain height is its lowest point with this many points (itself included) within "
+        "tolerance; at most a quarter of the points the cloud's surface density puts in a cell; 1 = paper",
+    )
 
 
 class BuildingParams(_Params):
@@ -173,7 +179,7 @@ def paper_config() -> MapClassConfig:
     per-point formulation)."""
     return MapClassConfig(
         density_relative=False,
-        ground=GroundParams(terrain="off"),
+        ground=GroundParams(terrain="off", min_support=1),
         building=BuildingParams(min_height=0.0, min_reach=0.0, spare_objects=False, roof_height=0.0, under_roof=0.0),
         vehicle=VehicleParams(max_verticality=1.0, group_voxel=0.0, skip_foliage=False),
         vegetation=VegetationParams(foliage_only=False, canopy_share=None),
@@ -187,8 +193,9 @@ class MapResult:
     sizes and threshold used (``scale``), the share of points under the density threshold, the
     messages about the input (also issued as :class:`DensityWarning`) and what the cloud decided
     (``choices``: ``terrain``, whether the ground took the terrain-relative tests, ``relief``, the
-    terrain's median slope, when measured, and ``canopy``, the share of foliage off the ground,
-    when a wooded tile took foliage alone as vegetation)."""
+    terrain's median slope, when measured, ``raised_cells``, the ground cells whose lowest point
+    lacked company and was passed over (``GroundParams.min_support``), and ``canopy``, the share
+    of foliage off the ground, when a wooded tile took foliage alone as vegetation)."""
 
     labels: np.ndarray
     segment: np.ndarray
@@ -476,9 +483,11 @@ def _classify_finite(
         g = cfg.ground
         airborne = 0 < scale.rho < g.terrain_max_density
         terrain = {"on": True, "off": False}.get(g.terrain, True if airborne else "auto")
+        # a surface of the cloud's density leaves rho * cell^2 points in a cell
+        support = min(g.min_support, max(1, int(scale.rho * scale.ground_cell**2 / 4)))
         mask = detect_ground(
             p, scale.ground_cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance,
-            terrain_relative=terrain, min_relief=g.min_relief, info=choices,
+            terrain_relative=terrain, min_relief=g.min_relief, min_support=support, info=choices,
         )  # fmt: skip
         t = time.perf_counter()
         v = M.verticality(normals, dgrid.voxel, dgrid.n_voxels, normal_of, idx)

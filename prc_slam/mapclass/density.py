@@ -99,11 +99,21 @@ def outlier_threshold(
     density: np.ndarray, voxel: float, percentile: float, fraction: float, min_points: float
 ) -> float:
     """Relative Sec. 3.1 threshold: ``fraction`` of the ``percentile``-th percentile of the
-    point densities, at least ``min_points`` points in the 3x3x3 neighbourhood."""
+    point densities, at least ``min_points`` points in the 3x3x3 neighbourhood.
+
+    The percentile is taken over the points with company (at least ``min_points`` in their
+    neighbourhood, the floor itself): the reference is then the density of the scanned surfaces
+    and not the outliers' own. Taken over every point it followed the outliers as soon as they
+    were more than ``percentile`` % of the cloud: a simulated mobile map with 5 % outliers per
+    sweep (6 % of its points) had a 5th percentile of one point, kept 19 % of its outliers at
+    the floor, and its ground grid took the minimum of the outliers under the road (ground
+    recall 0.00)."""
     floor = min_points / (27.0 * voxel**3)
-    if len(density) == 0:
+    density = np.asarray(density)
+    dense = density[density >= floor * (1 - 1e-9)] if floor > 0 else density  # the floor's count itself
+    if len(dense) == 0:
         return floor
-    return float(max(fraction * np.percentile(density, percentile), floor))
+    return float(max(fraction * np.percentile(dense, percentile), floor))
 
 
 def below_message(share: float, threshold: float, median: float, relative: bool, paper_threshold: float) -> str:

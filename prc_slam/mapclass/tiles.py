@@ -170,6 +170,7 @@ def density_summary(results: list[MapResult]) -> dict[str, Any]:
     pieces = [r.choices for r in results if r.choices]
     out["terrain_ground_share"] = float(np.mean([bool(c.get("terrain")) for c in pieces])) if pieces else 0.0
     out["canopy_share"] = float(np.mean(["canopy" in c for c in pieces])) if pieces else 0.0  # wooded pieces
+    out["raised_ground_cells"] = int(sum(c.get("raised_cells", 0) for c in pieces))
     out["messages"] = [m for r in results for m in r.messages]
     return out
 
