@@ -30,6 +30,17 @@ def test_supported_minimum_hand_computed():
     raised = zmin.copy()
     assert supported_minimum(pts, 0.0, 0.0, 1.0, raised, 0.2, 5) == 1
     assert raised[0, 0] == 0.0  # the lowest point with four more within 0.2 m above it
+    # a stray 2 m down, alone in the cells around too: raised whatever the distance
+    deep = pts.copy()
+    deep[-1, 2] = -2.0
+    z = np.array([[-2.0]])
+    assert supported_minimum(deep, 0.0, 0.0, 1.0, z, 0.2, 5, reach=1.0) == 1 and z[0, 0] == 0.0
+    # sparse ground under a crown: two ground points a cell, 20 crown points 5 m up; the lowest
+    # point has company in the cells around, and the crown is beyond reach: it stands
+    cells = [(i + 0.5, j + 0.5) for i in range(3) for j in range(3)]
+    crown = np.array([[x, y, z] for x, y in cells for z in [0.0, 0.01, *np.linspace(5.0, 5.1, 20)]])
+    z = np.zeros((3, 3))
+    assert supported_minimum(crown, 0.0, 0.0, 1.0, z, 0.2, 5, window=3, reach=1.0) == 0 and (z == 0.0).all()
     # fewer points than needed, or none with company (a vertical pole of 0.5 m spacing): unchanged
     few = np.array([[0.5, 0.5, -0.4], [0.5, 0.5, 0.0], [0.5, 0.5, 0.01]])
     z = np.array([[-0.4]])

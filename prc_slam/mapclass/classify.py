@@ -487,7 +487,8 @@ def _classify_finite(
         support = min(g.min_support, max(1, int(scale.rho * scale.ground_cell**2 / 4)))
         mask = detect_ground(
             p, scale.ground_cell, g.local_radius, g.max_slope, g.max_step, g.max_above_local, g.tolerance,
-            terrain_relative=terrain, min_relief=g.min_relief, min_support=support, info=choices,
+            terrain_relative=terrain, min_relief=g.min_relief, min_support=support, reach=3 * scale.density_voxel,
+            info=choices,
         )  # fmt: skip
         t = time.perf_counter()
         v = M.verticality(normals, dgrid.voxel, dgrid.n_voxels, normal_of, idx)

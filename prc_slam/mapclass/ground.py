@@ -130,15 +130,22 @@ def _point_mask(points, x0, y0, inv_cell, zmin, ground_cell, tolerance):
 
 
 @njit(cache=True, nogil=True)
-def _support(points, x0, y0, inv_cell, zmin, band, support, count):
-    """Per cell: ``support`` = points within ``band`` above the cell's minimum, ``count`` = all
-    its points."""
+def _support(points, x0, y0, inv_cell, zmin, band, support, around, count):
+    """Per cell: ``support`` = its points within ``band`` above its minimum, ``around`` = the
+    points of it and its eight neighbours within ``band`` of that minimum in height, ``count`` =
+    all its points."""
+    nx, ny = zmin.shape
     for i in range(points.shape[0]):
         ix = int((points[i, 0] - x0) * inv_cell)
         iy = int((points[i, 1] - y0) * inv_cell)
+        z = points[i, 2]
         count[ix, iy] += 1
-        if points[i, 2] - zmin[ix, iy] <= band:
+        if z - zmin[ix, iy] <= band:
             support[ix, iy] += 1
+        for jx in range(max(ix - 1, 0), min(ix + 2, nx)):
+            for jy in range(max(iy - 1, 0), min(iy + 2, ny)):
+                if abs(z - zmin[jx, jy]) <= band:
+                    around[jx, jy] += 1
 
 
 @njit(cache=True, nogil=True)
@@ -162,16 +169,20 @@ def _cells_of(points, x0, y0, inv_cell, flagged, ny):
 
 
 @njit(cache=True, nogil=True)
-def _lowest_supported(key, z, band, need, zmin_flat):
+def _lowest_supported(key, z, band, need, reach_flat, zmin_flat):
     """Over points sorted by (cell, z): each cell's lowest z with ``need - 1`` more points of the
-    cell within ``band`` above it, into ``zmin_flat`` (left as it is where none has)."""
+    cell within ``band`` above it and at most ``reach_flat[cell]`` above the cell's lowest
+    point, into ``zmin_flat`` (left as it is where none has)."""
     n = len(key)
     start = 0
     while start < n:
         end = start
         while end < n and key[end] == key[start]:
             end += 1
+        reach = reach_flat[key[start]]
         for i in range(start, end - need + 1):
+            if z[i] - z[start] > reach:
+                break
             if z[i + need - 1] - z[i] <= band:
                 zmin_flat[key[start]] = z[i]
                 break
@@ -179,10 +190,18 @@ def _lowest_supported(key, z, band, need, zmin_flat):
 
 
 def supported_minimum(
-    points: np.ndarray, x0: float, y0: float, cell: float, zmin: np.ndarray, band: float, need: int, window: int = 13
+    points: np.ndarray,
+    x0: float,
+    y0: float,
+    cell: float,
+    zmin: np.ndarray,
+    band: float,
+    need: int,
+    window: int = 13,
+    reach: float = 1.0,
 ) -> int:
     """Raise each cell's minimum to the lowest point with ``need - 1`` more points of the cell
-    within ``band`` above it (in place; returns the number of cells raised).
+    within ``band`` above it (in place; returns the number of cells raised or left out).
 
     Sec. 4.1 takes a cell's lowest point as its terrain height, and every cell within
     ``local_radius`` is then measured against it: one return under the surface (an outlier or
@@ -190,7 +209,11 @@ def supported_minimum(
     filter cannot tell from the ground) takes the ground of a 6 x 6 m square with it. A
     simulated mobile map with 5 % outliers per sweep had such a point in 9 % of its ground cells
     and lost 78 % of its ground. A surface is a dense layer; a stray return is alone at its
-    height. Cells in which no point has that company keep their lowest point. A cell of fewer
+    height. Sparse ground under trees is alone in its cell too, but has company in the cells
+    around (``need`` points of the cell and its eight neighbours within ``band`` of it): such a
+    lowest point is passed over only for a dense layer at most ``reach`` above it (the Sec. 3.1
+    neighbourhood, ~1 m tall: a return that close under a surface borrows its density), not for
+    a crown metres above. Cells in which no point has that company keep their lowest point. A cell of fewer
     than ``need`` points (a stray return or two in a cell the surfaces did not reach) takes no
     part (``inf``) when it lies more than ``band`` below every cell of ``need`` points or more
     in the ``window`` (cells) around it, and keeps its lowest point otherwise (where the whole
@@ -200,15 +223,17 @@ def supported_minimum(
         return 0
     inv = 1.0 / cell
     support = np.zeros(zmin.shape, np.int64)
+    around = np.zeros(zmin.shape, np.int64)
     count = np.zeros(zmin.shape, np.int64)
-    _support(points, x0, y0, inv, zmin, band, support, count)
+    _support(points, x0, y0, inv, zmin, band, support, around, count)
     before = zmin.copy()
     flagged = (support < need) & (count >= need)
     if flagged.any():
         idx, key = _cells_of(points, x0, y0, inv, flagged, zmin.shape[1])
         z = points[idx, 2]
         order = np.lexsort((z, key))
-        _lowest_supported(key[order], z[order], band, need, zmin.reshape(-1))
+        reaches = np.where(around >= need, reach, np.inf).reshape(-1)
+        _lowest_supported(key[order], z[order], band, need, reaches, zmin.reshape(-1))
     sparse = (count > 0) & (count < need)
     if sparse.any():
         dense_low = minimum_window(np.where(count >= need, zmin, np.inf), window)
@@ -376,6 +401,7 @@ def detect_ground(
     terrain_slope: float = 0.84,
     min_relief: float = 0.05,
     min_support: int = 1,
+    reach: float = 1.0,
     info: dict | None = None,
 ) -> np.ndarray:
     """Sec. 4.1: ground mask of ``points``.
@@ -408,7 +434,8 @@ def detect_ground(
         ``"auto"``: the median slope (rise per metre) from which the terrain is not level.
     min_support : int
         A cell's terrain height is its lowest point with ``min_support - 1`` more points within
-        ``tolerance`` above it (:func:`supported_minimum`); 1: its lowest point (the paper).
+        ``tolerance`` above it, at most ``reach`` (m) above the lowest (:func:`supported_minimum`);
+        1: its lowest point (the paper).
     info : dict, optional
         Filled with ``terrain`` (whether the terrain-relative test ran), in ``"auto"``,
         ``relief``, and ``raised_cells`` (cells whose lowest point lacked support).
@@ -427,7 +454,7 @@ def detect_ground(
     _grid_min(pts, lo[0], lo[1], 1.0 / cell, zmin)
     w = 2 * int(np.ceil(local_radius / cell)) + 1
     info = {} if info is None else info
-    info["raised_cells"] = supported_minimum(pts, lo[0], lo[1], cell, zmin, tolerance, min_support, w)
+    info["raised_cells"] = supported_minimum(pts, lo[0], lo[1], cell, zmin, tolerance, min_support, w, reach)
     if terrain_relative == "auto":
         info["relief"] = terrain_relief(zmin, cell)
         terrain_relative = info["relief"] >= min_relief
