@@ -298,6 +298,9 @@ class NextFrame:
         self._thread.join()
         return self.seconds
 
+    def close(self) -> None:
+        """Nothing to end (:class:`~prc_slam.frame_process.ForkedNextFrame` ends its process)."""
+
     def take(self) -> ClassifiedFrame | None:
         """The next frame (None after the last), made now unless :meth:`start` began it."""
         if self._later is not None and self._thread is None:
@@ -374,6 +377,7 @@ class PipelineResult:
     odometry: Any = None
     organize: dict[str, Any] = field(default_factory=dict)
     interrupted: bool = False
+    next_frame: str | None = None  # where the next frame was made beside the registration: process, thread
 
     def summary(self) -> dict[str, Any]:
         """Counts for the metrics JSON: frames, points, skipped frames and points, organiser warnings."""
@@ -396,6 +400,8 @@ class PipelineResult:
             out["organize"] = self.organize
         if self.interrupted:
             out["interrupted"] = True
+        if self.next_frame:
+            out["next_frame_made_in"] = self.next_frame
         return out
 
 
@@ -514,8 +520,7 @@ class Pipeline:
         """
         result = PipelineResult()
         t_start = time.perf_counter()
-        ahead = ReadAhead(scans)
-        frames = NextFrame(self._classified(self._readable(ahead, result)), ahead)
+        frames = self._next_frames(ReadAhead(scans), result)
         index = -1
         try:
             while (frame := frames.take()) is not None:
@@ -563,15 +568,54 @@ class Pipeline:
         except KeyboardInterrupt:
             result.interrupted = True
             frames.wait()  # the next frame's thread writes into result (skips, organiser)
+            frames.close()
             self._finish(result, t_start)
             raise
         except BaseException:
             frames.wait()
+            frames.close()
             raise
+        frames.close()
         self._finish(result, t_start)
         if result.frames == 0 and result.skipped:
             raise FrameError(f"no frame could be read; first problem: {result.skipped[0].reason}")
         return result
+
+    def _next_frames(self, ahead: ReadAhead, result: PipelineResult) -> Any:
+        """The frames of ``ahead``, read, organised and classified: on a second thread when the
+        odometry stage makes the next frame beside its registration, in a forked process when
+        its ``odometry.overlap_process`` says so and a fork is safe here
+        (:mod:`prc_slam.frame_process`: KISS-ICP holds the GIL while it registers)."""
+
+        def make() -> NextFrame:
+            return NextFrame(self._classified(self._readable(ahead, result)), ahead)
+
+        cfg = getattr(getattr(self.odometry, "config", None), "odometry", None)
+        if cfg is None or not cfg.overlap:
+            return make()
+        result.next_frame = "thread"
+        if not cfg.overlap_process:
+            return make()
+        from prc_slam.frame_process import ForkedNextFrame, can_fork
+
+        ok, why = can_fork()
+        if not ok:
+            log.info("the next frame is made on a thread beside the registration: %s", why)
+            return make()
+        result.next_frame = "process"
+        sent: list[str] = []
+
+        def make_in_child() -> NextFrame:
+            self.warn = sent.append  # passed on to the caller's warn with each frame
+            return make()
+
+        def absorb(state: tuple) -> None:  # what the source wrote, in the child, as it read
+            result.skipped, result.organize, result.nonfinite_points = state
+
+        def state() -> tuple:
+            return result.skipped, result.organize, result.nonfinite_points
+
+        return ForkedNextFrame(make_in_child, state, absorb, sent, self.warn)
 
     def _finish(self, result: PipelineResult, t_start: float) -> None:
         result.wall_seconds = time.perf_counter() - t_start

@@ -24,6 +24,18 @@ from typing import Any, TypeVar
 import numba
 
 
+def numba_threads() -> int:
+    """``numba.get_num_threads()`` without starting numba's thread pool: until a parallel kernel
+    (or ``numba.set_num_threads``) has started it, the configured count (``NUMBA_NUM_THREADS``).
+    Asking the pool starts its OpenMP threads, after which this process can no longer be forked
+    safely (:mod:`prc_slam.frame_process`); splitting work across plain threads does not need it."""
+    from numba.np.ufunc import parallel
+
+    if getattr(parallel, "_is_initialized", True):
+        return numba.get_num_threads()
+    return int(numba.config.NUMBA_NUM_THREADS)
+
+
 def in_threads(work: Callable[[int, int], object], n: int, min_chunk: int = 256, pieces: int = 4) -> None:
     """``work(lo, hi)`` over ``0..n`` in contiguous chunks on the numba threads
     (``numba.get_num_threads()``, which ``NUMBA_NUM_THREADS`` sets): as many threads as there are
@@ -31,7 +43,7 @@ def in_threads(work: Callable[[int, int], object], n: int, min_chunk: int = 256,
     its last; ``pieces`` chunks per thread, so that a thread slowed by a heavier share of the items
     or by another process on its core does not hold the others up. The calling thread is one of
     them. ``work`` must release the GIL (a ``nogil`` kernel) and write disjoint outputs per item."""
-    k = max(1, min(numba.get_num_threads(), n // max(1, min_chunk)))
+    k = max(1, min(numba_threads(), n // max(1, min_chunk)))
     if k == 1:
         work(0, n)
         return
@@ -75,7 +87,7 @@ def side_by_side(*steps: Callable[[], Any]) -> tuple[list[Any], list[float]]:
             errors.append(exc)
         seconds[k] = time.perf_counter() - t
 
-    if numba.get_num_threads() < 2 or len(steps) < 2:
+    if numba_threads() < 2 or len(steps) < 2:
         for k in range(len(steps)):
             run(k)
     else:
@@ -113,7 +125,7 @@ class ThreadUse:
         self.waited = 0  # threaded steps that waited for a core (for reports)
 
     def use(self, items: int) -> bool:
-        if items < self.min_items or numba.get_num_threads() < 2:
+        if items < self.min_items or numba_threads() < 2:
             return False
         if self.serial_left > 0:
             self.serial_left -= 1

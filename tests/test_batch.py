@@ -116,7 +116,8 @@ def test_inputs_resolve_globs_names_and_jobs(tmp_path):
 
 # ---- batch on 2 worker processes against each input alone ------------------------------------
 
-_TIMING = ("seconds", "per_s", "ms_")
+# timings, and where the next frame was made (a forked process alone, a thread on a Dask worker)
+_TIMING = ("seconds", "per_s", "ms_", "next_frame_made_in")
 
 
 def _no_timings(value):

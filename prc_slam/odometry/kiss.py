@@ -73,6 +73,12 @@ class OdometryConfig(BaseModel):
         "while the PRC variants filter and register this one (variants without PRC register alone); a PRC "
         "variant is charged the wall time",
     )
+    overlap_process: bool = Field(
+        True,
+        description="with overlap: make the next frame in a forked second process where that is safe (POSIX, "
+        "numba's threads not yet started) instead of a thread, whose Python steps wait for the GIL that "
+        "KISS-ICP holds while it registers",
+    )
     guard: GuardConfig = Field(default_factory=GuardConfig)
 
 
