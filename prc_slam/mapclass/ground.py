@@ -213,12 +213,11 @@ def supported_minimum(
     around (``need`` points of the cell and its eight neighbours within ``band`` of it): such a
     lowest point is passed over only for a dense layer at most ``reach`` above it (the Sec. 3.1
     neighbourhood, ~1 m tall: a return that close under a surface borrows its density), not for
-    a crown metres above. Cells in which no point has that company keep their lowest point. A cell of fewer
-    than ``need`` points (a stray return or two in a cell the surfaces did not reach) takes no
-    part (``inf``) when it lies more than ``band`` below every cell of ``need`` points or more
-    in the ``window`` (cells) around it, and keeps its lowest point otherwise (where the whole
-    neighbourhood is sparse). ``need = 1``: the paper's minimum. Returns the cells raised or
-    left out."""
+    a crown metres above. Cells in which no point has that company keep their lowest point. A
+    cell of fewer than ``need`` points (a stray return or two in a cell the surfaces did not
+    reach) takes no part (``inf``) when it lies more than ``band`` below every cell of ``need``
+    points or more in the ``window`` (cells) around it, and keeps its lowest point otherwise
+    (where the whole neighbourhood is sparse). ``need = 1``: the paper's minimum."""
     if need <= 1:
         return 0
     inv = 1.0 / cell
@@ -434,8 +433,8 @@ def detect_ground(
         ``"auto"``: the median slope (rise per metre) from which the terrain is not level.
     min_support : int
         A cell's terrain height is its lowest point with ``min_support - 1`` more points within
-        ``tolerance`` above it, at most ``reach`` (m) above the lowest (:func:`supported_minimum`);
-        1: its lowest point (the paper).
+        ``tolerance`` above it (:func:`supported_minimum`; found at most ``reach`` m above a lowest
+        point that has company in the cells around); 1: its lowest point (the paper).
     info : dict, optional
         Filled with ``terrain`` (whether the terrain-relative test ran), in ``"auto"``,
         ``relief``, and ``raised_cells`` (cells whose lowest point lacked support).
