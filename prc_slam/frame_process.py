@@ -39,6 +39,10 @@ log = logging.getLogger("prc_slam.pipeline")
 CHILD_NICE = 19
 
 
+class FrameProcessEnded(RuntimeError):
+    """The child making the frames ended without being asked to (killed, out of memory, crashed)."""
+
+
 def can_fork() -> tuple[bool, str]:
     """Whether a frame process can be forked here, and why not."""
     if os.name != "posix" or "fork" not in mp.get_all_start_methods():
@@ -157,8 +161,13 @@ class ForkedNextFrame:
         try:
             item, charged, seconds, records, warned, state, error = self._conn.recv()
         except (EOFError, OSError) as exc:
+            self._asked = False
+            self._proc.join(1.0)
             code = self._proc.exitcode
-            raise RuntimeError(f"the process making the frames ended (exit code {code}): {exc}") from None
+            raise FrameProcessEnded(
+                f"the process making the frames ended (exit code {code}{', a signal' if code and code < 0 else ''})"
+                + (f": {exc}" if str(exc) else "")
+            ) from None
         self._asked = False
         self.charged, self.seconds = tuple(charged), seconds
         for name, level, text in records:
@@ -175,10 +184,14 @@ class ForkedNextFrame:
             self._asked = True
 
     def wait(self) -> float:
-        """Wait for the frame asked by :meth:`start`; its wall time (s), 0 if none was asked."""
+        """Wait for the frame asked by :meth:`start`; its wall time (s), 0 if none was asked. A
+        child that has ended is raised by the next :meth:`take`, in its turn."""
         if not self._asked:
             return 0.0
-        self._receive()
+        try:
+            self._receive()
+        except FrameProcessEnded as exc:
+            self.charged, self.seconds, self._got = (), 0.0, (None, exc)
         return self.seconds
 
     def take(self) -> Any:

@@ -378,6 +378,7 @@ class PipelineResult:
     organize: dict[str, Any] = field(default_factory=dict)
     interrupted: bool = False
     next_frame: str | None = None  # where the next frame was made beside the registration: process, thread
+    ended_early: str | None = None  # why the run stopped before the input's end (its frame process ended)
 
     def summary(self) -> dict[str, Any]:
         """Counts for the metrics JSON: frames, points, skipped frames and points, organiser warnings."""
@@ -402,6 +403,8 @@ class PipelineResult:
             out["interrupted"] = True
         if self.next_frame:
             out["next_frame_made_in"] = self.next_frame
+        if self.ended_early:
+            out["ended_early"] = self.ended_early
         return out
 
 
@@ -523,7 +526,7 @@ class Pipeline:
         frames = self._next_frames(ReadAhead(scans), result)
         index = -1
         try:
-            while (frame := frames.take()) is not None:
+            while (frame := self._take(frames, result, index + 1)) is not None:
                 index += 1
                 scan = frame.scan
                 n = scan.n_points
@@ -580,6 +583,19 @@ class Pipeline:
         if result.frames == 0 and result.skipped:
             raise FrameError(f"no frame could be read; first problem: {result.skipped[0].reason}")
         return result
+
+    def _take(self, frames: Any, result: PipelineResult, index: int) -> ClassifiedFrame | None:
+        """The next frame; None at the end, and when the process making the frames has ended: the
+        run stops there, said and recorded (``ended_early``), and every output covers the frames
+        before (as at the end of the input)."""
+        from prc_slam.frame_process import FrameProcessEnded
+
+        try:
+            return frames.take()
+        except FrameProcessEnded as exc:
+            result.ended_early = f"{exc}; the run stopped before frame {index}"
+            self.warn(f"{result.ended_early}: the outputs cover frames 0 to {index - 1}")
+            return None
 
     def _next_frames(self, ahead: ReadAhead, result: PipelineResult) -> Any:
         """The frames of ``ahead``, read, organised and classified: on a second thread when the

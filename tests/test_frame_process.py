@@ -125,6 +125,63 @@ def test_compare_in_a_process_is_the_run_on_a_thread(tmp_path):
     shutil.rmtree(root)
 
 
+_DYING = """
+import os, sys
+from pathlib import Path
+import prc_slam.jobs.odometry as job
+from prc_slam.config import Config
+
+parent, opened = os.getpid(), job.open_input
+
+class Dying:  # reading frame 4 kills the process making the frames (the child)
+    def __init__(self, ds):
+        self.ds = ds
+    def __len__(self):
+        return len(self.ds)
+    def __getitem__(self, i):
+        if i == 4 and os.getpid() != parent:
+            os._exit(9)
+        return self.ds[i]
+    def __getattr__(self, name):
+        return getattr(self.ds, name)
+
+def open_input(*a, **k):
+    ds, n = opened(*a, **k)
+    return Dying(ds), n
+
+job.open_input = open_input
+run, _ = job.run_odometry(Path(sys.argv[1]), Config(), ["raw", "prc"])
+job.write_outputs(run, Config(), Path(sys.argv[2]), "dying")
+"""
+
+
+def test_a_frame_process_that_dies_ends_the_run_with_its_outputs(tmp_path):
+    """The child killed while reading frame 4 (the OOM killer, a crash in a reader's library):
+    the run stops there, said, and every output covers the frames registered before."""
+    from data_tools.sim.dataset import write_sequence
+    from data_tools.sim.simulator import SimConfig, Simulator
+
+    root = tmp_path / "seq"
+    write_sequence(Simulator(SimConfig(frames=8, seed=4, sensor="vlp16")), root)
+    script = tmp_path / "dying.py"
+    script.write_text(_DYING)
+    res = subprocess.run(
+        [sys.executable, str(script), str(root), str(tmp_path / "out")], capture_output=True, text=True, timeout=600
+    )
+    assert res.returncode == 0, res.stdout + res.stderr
+    said = " ".join((res.stdout + res.stderr).split())  # the console wraps long lines
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["next_frame_made_in"] == "process"
+    # the child reads a frame ahead: frame 3 is lost with it when it was made before frame 4's read
+    ended = metrics["ended_early"]
+    k = int(ended.rsplit("before frame ", 1)[1])
+    assert k in (3, 4) and ended.startswith("the process making the frames ended (exit code 9)")
+    assert f"the outputs cover frames 0 to {k - 1}" in said
+    assert {v["frames"] for v in metrics["variants"].values()} == {k}
+    assert len(np.loadtxt(tmp_path / "out" / "prc_poses_tum.txt")) == k
+    assert "**Ended early**" in (tmp_path / "out" / "report.md").read_text()
+
+
 def test_can_fork_says_why_not_once_numba_threads_run():
     """In this (pytest) process numba's parallel threads may already run; either way the answer
     is consistent with numba's own state."""

@@ -159,6 +159,8 @@ def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> li
                 "frame, so they are shorter than the input: `frames.txt` names the frame of each line (the TUM "
                 "files carry the times).\n\n" + "".join(f"- input frame {s['index']}: {s['reason']}\n" for s in skips)
             )
+        if run.metrics.get("ended_early"):
+            f.write(f"\n**Ended early**: {run.metrics['ended_early']}; every output covers the frames before.\n")
         if "health_note" in run.metrics:
             f.write(f"\n**Health not checked**: {run.metrics['health_note']}.\n")
         if run.prc is not None:
