@@ -157,17 +157,20 @@ class ForkedNextFrame:
         self.seconds = 0.0
         self.charged: tuple[tuple[float, float], ...] = ()
 
+    def _ended(self, exc: BaseException) -> FrameProcessEnded:
+        self._asked = False
+        self._proc.join(1.0)
+        code = self._proc.exitcode
+        return FrameProcessEnded(
+            f"the process making the frames ended (exit code {code}{', a signal' if code and code < 0 else ''})"
+            + (f": {exc}" if str(exc) else "")
+        )
+
     def _receive(self) -> None:
         try:
             item, charged, seconds, records, warned, state, error = self._conn.recv()
         except (EOFError, OSError) as exc:
-            self._asked = False
-            self._proc.join(1.0)
-            code = self._proc.exitcode
-            raise FrameProcessEnded(
-                f"the process making the frames ended (exit code {code}{', a signal' if code and code < 0 else ''})"
-                + (f": {exc}" if str(exc) else "")
-            ) from None
+            raise self._ended(exc) from None
         self._asked = False
         self.charged, self.seconds = tuple(charged), seconds
         for name, level, text in records:
@@ -180,7 +183,11 @@ class ForkedNextFrame:
     def start(self) -> None:
         """Ask the child for the next frame (nothing when already asked or made)."""
         if not self._asked and self._got is None:
-            self._conn.send(True)
+            try:
+                self._conn.send(True)
+            except OSError as exc:  # the child has gone: said by the next take()
+                self._got = (None, self._ended(exc))
+                return
             self._asked = True
 
     def wait(self) -> float:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from prc_slam.frame_process import ForkedNextFrame, can_fork
+from prc_slam.frame_process import ForkedNextFrame, FrameProcessEnded, can_fork
 
 pytestmark = pytest.mark.skipif(os.name != "posix", reason="fork is POSIX only")
 
@@ -79,13 +79,23 @@ def test_forked_frames_errors_logs_warnings_and_state(caplog, broken):
     assert not frames._proc.is_alive() and frames._proc.exitcode == 0
 
 
-def test_a_child_that_dies_is_an_error():
+def test_a_child_that_dies_is_an_error_raised_by_take():
     def make():
         os._exit(3)
 
     frames = ForkedNextFrame(make, dict, lambda s: None, [], lambda s: None)
     try:
-        with pytest.raises(RuntimeError, match="process making the frames ended"):
+        with pytest.raises(FrameProcessEnded, match=r"process making the frames ended \(exit code 3\)"):
+            frames.take()
+    finally:
+        frames.close()
+    # gone between frames: start() and wait() do not raise, the next take() does
+    frames = ForkedNextFrame(make, dict, lambda s: None, [], lambda s: None)
+    frames._proc.join(5.0)
+    try:
+        frames.start()
+        assert frames.wait() == 0.0
+        with pytest.raises(FrameProcessEnded):
             frames.take()
     finally:
         frames.close()
