@@ -30,8 +30,6 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-log = logging.getLogger("prc_slam.pipeline")
-
 #: the child's scheduling niceness: the registration beside it is the critical path, and on two
 #: cores KISS-ICP's threads use both; at the caller's priority the child's reading and PRC slowed
 #: them (simulated urban drive: ICP 7.7 -> 12.3 ms a frame, prc time 0.51 -> 0.61 of raw's), at

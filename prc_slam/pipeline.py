@@ -22,6 +22,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from prc_slam import labels as L
+from prc_slam.frame_process import ForkedNextFrame, FrameProcessEnded, can_fork
 from prc_slam.prc import PRCStream, prc_block
 from prc_slam.prc.config import AutoPreset, PRCConfig
 from prc_slam.prc.ground import GroundState, upside_down
@@ -588,8 +589,6 @@ class Pipeline:
         """The next frame; None at the end, and when the process making the frames has ended: the
         run stops there, said and recorded (``ended_early``), and every output covers the frames
         before (as at the end of the input)."""
-        from prc_slam.frame_process import FrameProcessEnded
-
         try:
             return frames.take()
         except FrameProcessEnded as exc:
@@ -612,8 +611,6 @@ class Pipeline:
         result.next_frame = "thread"
         if not cfg.overlap_process:
             return make()
-        from prc_slam.frame_process import ForkedNextFrame, can_fork
-
         ok, why = can_fork()
         if not ok:
             log.info("the next frame is made on a thread beside the registration: %s", why)
