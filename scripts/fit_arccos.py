@@ -3,8 +3,14 @@
 ``asin(s) = s + s z g(z)`` with ``z = s^2`` on ``[0, 1/4]``; ``g`` is interpolated at 400
 Chebyshev nodes from long-double ``arcsin`` (a series near 0, where ``arcsin(s) - s``
 cancels) and written in the power basis of ``z``. Run ``python scripts/fit_arccos.py`` to
-print the coefficients (``ARCCOS_G``) and the largest error of ``arccos_into`` (degrees)
-against numpy's, in units in the last place, on a million uniform samples of ``[-1, 1]``.
+print the refitted coefficients and the largest errors of the coefficients in use
+(``ARCCOS_G``), in units in the last place, on a million uniform samples of ``[-1, 1]`` and the
+ulps next to +-1: of ``arccos`` (radians) against the exact value (long double) and against
+numpy's ``arccos``, and of ``arccos_into`` (degrees) against the exact degrees. Measured over 4e7
+cosines: 1.13 ulp, 1 ulp and 2.70 ulp. The refit's last digits follow the least-squares (LAPACK) kernels the CPU
+selects (here up to 2.4e-3 relative in the highest powers, while the two polynomials agree to
+3e-16 relative on ``[0, 1/4]``), so it is not compared digit by digit with ``ARCCOS_G``: the
+error above is what matters, and it is what ``tests/test_online_equivalence.py`` bounds.
 """
 
 from __future__ import annotations
@@ -37,13 +43,32 @@ def fit(degree: int = DEGREE) -> np.ndarray:
     return in_z.coef
 
 
-if __name__ == "__main__":
-    from prc_slam.online.kernels import ARCCOS_G, arccos_into
+def ulp_error(ours: np.ndarray, exact: np.ndarray) -> float:
+    """The largest ``|ours - exact|`` in units in the last place of the float64 nearest ``exact``."""
+    return float(np.max(np.abs((ours.astype(np.longdouble) - exact) / np.spacing(exact.astype(np.float64)))))
 
-    print("ARCCOS_G =", tuple(float(c) for c in fit()))
-    x = np.random.default_rng(0).uniform(-1, 1, 1_000_000)
-    ours = x.copy()
-    arccos_into(ours, len(ours))
-    ref = np.degrees(np.arccos(x))
-    print("largest error (ulp):", float(np.max(np.abs(ours - ref) / np.spacing(ref))))
-    print("coefficients in use match the fit:", np.allclose(ARCCOS_G, fit(), rtol=1e-12, atol=0))
+
+def report() -> None:
+    """Print the refit and the errors of the coefficients in use."""
+    from numba import njit
+
+    from prc_slam.online.kernels import ARCCOS_G, arccos, arccos_into
+
+    refit = fit()
+    print("ARCCOS_G (refit) =", tuple(float(c) for c in refit))
+    rel = np.abs(refit - np.asarray(ARCCOS_G)) / np.abs(refit)
+    print(f"refit vs ARCCOS_G in use: largest relative difference {rel.max():.1e} (follows the LAPACK kernels)")
+    tail = np.arange(200_000) * (np.spacing(1.0) / 2)
+    c = np.concatenate([np.random.default_rng(0).uniform(-1, 1, 1_000_000), [-1.0, 0.0, 1.0], 1 - tail, tail - 1])
+    exact = np.arccos(c.astype(np.longdouble))
+    rad = njit(lambda c: np.array([arccos(x) for x in c]))(c)
+    deg = c.copy()
+    arccos_into(deg, len(deg))
+    print(f"arccos, radians: largest error {ulp_error(rad, exact):.2f} ulp of the exact value (long double)")
+    numpy = np.arccos(c).astype(np.longdouble)
+    print(f"arccos, radians: largest difference {ulp_error(rad, numpy):.2f} ulp of numpy's")
+    print(f"arccos_into, degrees: largest error {ulp_error(deg, np.degrees(exact)):.2f} ulp of the exact value")
+
+
+if __name__ == "__main__":
+    report()

@@ -10,7 +10,8 @@ import numpy as np
 from numba import njit
 
 #: ``g(z)`` of :func:`arccos` (``asin(s) = s + s z g(z)``, ``z = s^2`` in ``[0, 1/4]``), lowest
-#: power first; fitted by ``scripts/fit_arccos.py``
+#: power first; fitted by ``scripts/fit_arccos.py`` (a refit's last digits follow the LAPACK kernels
+#: the CPU selects; the tests bound the error of these coefficients, not their digits)
 ARCCOS_G = (
     0.16666666666666657, 0.07500000000020912, 0.044642857102371265, 0.03038194745732771,
     0.02237204423740889, 0.01735533035745869, 0.013928767296575563, 0.011882537079030621,
@@ -23,9 +24,11 @@ _PIO2_LO = 6.123233995736766e-17  # pi / 2 - float(pi / 2)
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def arccos(c):
-    """``arccos(c)`` for ``c`` in ``[-1, 1]``, within one unit in the last place of numpy's, and
-    branch-free so that loops over arrays of cosines vectorise (glibc's ``acos`` was a tenth of
-    the online detectors' time, one call per angle).
+    """``arccos(c)`` for ``c`` in ``[-1, 1]``, within 1.5 units in the last place of the exact
+    value (measured 1.13 ulp over 4e7 cosines: a grid of ``[-1, 1]`` and the ulps next to +-1,
+    +-1/2 and 0; numpy's own ``arccos`` is within 0.82 ulp here) and so within 2 ulp of numpy's
+    on any machine (1 ulp on this one), and branch-free so that loops over arrays of cosines
+    vectorise (glibc's ``acos`` was a tenth of the online detectors' time, one call per angle).
 
     The classic reduction: ``arccos(c) = pi/2 - asin(c)`` for ``|c| <= 1/2``, else
     ``2 asin(s)`` (``c > 0``) or ``pi - 2 asin(s)`` (``c < 0``) with ``s = sqrt((1 - |c|) / 2)``;
@@ -60,7 +63,9 @@ def arccos(c):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def arccos_into(c, n):
-    """``c[:n] = degrees(arccos(c[:n]))`` in place (:func:`arccos`; a loop that vectorises)."""
+    """``c[:n] = degrees(arccos(c[:n]))`` in place (:func:`arccos`; a loop that vectorises), within
+    3 ulp of the exact degrees (measured 2.70 ulp: the radians' error times 180/pi plus the
+    rounding of the conversion; 2 ulp of ``np.degrees(np.arccos(c))``)."""
     for k in range(n):
         c[k] = np.degrees(arccos(c[k]))
 
