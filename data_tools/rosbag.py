@@ -4,7 +4,11 @@ Read with ``rosbags`` (pure Python, no ROS installation). One cloud topic is rea
 detected when the recording holds exactly one ``PointCloud2`` topic, chosen with ``topic=``
 otherwise (the error lists the candidates). ROS 1 chunks may be bz2 / lz4 compressed, rosbag2
 messages or files zstd compressed: a compressed rosbag2 storage file given alone is read through
-its folder's ``metadata.yaml`` (which alone says it is compressed).
+its folder's ``metadata.yaml`` (which alone says it is compressed). Recordings without message
+definitions (rosbag2 before Iron: bag format 1-7 metadata, sqlite3 storage without
+``message_definitions``, MCAP files with empty schemas) are read with the standard ROS 2 types and
+the packet types of :data:`PACKET_DEFINITIONS` (:func:`open_reader`); a topic whose type is
+neither defined nor known is refused, naming it.
 
 Decoding honours ``point_step``, ``row_step``, every field's offset, datatype and count, and
 ``is_bigendian``: the message data is viewed through a numpy structured dtype built from the
@@ -34,6 +38,7 @@ topic is the same (unset by the driver), the recording's log times are, with a w
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -486,14 +491,129 @@ def reader_paths(path: Path) -> list[Path]:
 
 VELODYNE_SCAN = ("velodyne_msgs/msg/VelodyneScan", "velodyne_msgs/VelodyneScan")
 
+#: Definitions (``.msg``) of the packet messages read or recognised in recordings, for the
+#: recordings that do not carry them: raw Velodyne packets (velodyne_msgs, decoded by
+#: :class:`~data_tools.velodyne_pcap.VelodyneScanSequence`) and raw Ouster packets (ouster-ros 1
+#: and 2, recognised with a hint). Time is ``builtin_interfaces/Time`` in both ROS versions (ROS 1
+#: ``time`` deserialises to it).
+PACKET_DEFINITIONS = {
+    "velodyne_msgs/msg/VelodynePacket": "builtin_interfaces/Time stamp\nuint8[1206] data\n",
+    "velodyne_msgs/msg/VelodyneScan": "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n",
+    "ouster_sensor_msgs/msg/PacketMsg": "uint8[] buf\n",
+    "ouster_ros/msg/PacketMsg": "uint8[] buf\n",
+}
+#: The standard message types a recording without its own definitions is read with (``rosbags``
+#: type stores). The types read here (PointCloud2, Header, Time, the packets) are the same from
+#: ROS 2 Dashing to Jazzy; ROS 1 recordings always carry their definitions.
+KNOWN_STORES = {True: "ROS2_HUMBLE", False: "ROS1_NOETIC"}
+
+
+@functools.cache
+def known_types(ros2: bool = True) -> Any:
+    """The ``rosbags`` typestore of the message types known without a recording's definitions:
+    the standard ROS 2 (or ROS 1) types of :data:`KNOWN_STORES` and the packets of
+    :data:`PACKET_DEFINITIONS`. Shared: read it, never register into it."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(getattr(Stores, KNOWN_STORES[ros2]))
+    types: dict[str, Any] = {}
+    for name, text in PACKET_DEFINITIONS.items():
+        types.update(get_types_from_msg(text, name))
+    store.register({k: v for k, v in types.items() if k not in store.fielddefs})
+    return store
+
+
+def describe_known_types(ros2: bool = True) -> str:
+    """The known types in a few words (for an error naming a type that is not among them)."""
+    store = KNOWN_STORES[ros2].replace("_", " ").title().replace("Ros", "ROS ")
+    return f"sensor_msgs/msg/PointCloud2, {', '.join(PACKET_DEFINITIONS)} and the other standard {store} messages"
+
+
+def _has_definition(conn: Any) -> bool:
+    """The connection carries a message definition (not none, not an empty one: some MCAP
+    writers stored empty schemas)."""
+    from rosbags.interfaces import MessageDefinitionFormat
+
+    return conn.msgdef.format != MessageDefinitionFormat.NONE and bool(conn.msgdef.data.strip())
+
+
+def _dependencies(names: set[str], fielddefs: dict[str, Any]) -> set[str]:
+    """``names`` and every type their fields use, transitively (names found in ``fielddefs``)."""
+    out: set[str] = set()
+    todo = [n for n in names if n in fielddefs]
+    while todo:
+        name = todo.pop()
+        if name in out:
+            continue
+        out.add(name)
+        stack: list[Any] = [fielddefs[name]]
+        while stack:
+            item = stack.pop()
+            if isinstance(item, str):
+                if item in fielddefs and item not in out:
+                    todo.append(item)
+            elif isinstance(item, tuple | list):
+                stack.extend(item)
+    return out
+
+
+def complete_types(store: Any, connections: Sequence[Any], known: Any) -> Any:
+    """The typestore of a recording with the types its connections lack a definition for taken
+    from ``known`` (an empty definition counts as none: it would decode every message as an empty
+    structure). A type neither defined nor known stays missing (reading its topic is then refused,
+    naming it). Returns ``store`` itself when nothing is to be added."""
+    from rosbags.interfaces import MessageDefinitionFormat
+    from rosbags.typesys import Stores, get_typestore
+
+    if all(c.msgdef.format == MessageDefinitionFormat.NONE for c in connections):
+        return store  # rosbags read the recording with ``known`` as its default typestore
+    defined = {c.msgtype for c in connections if _has_definition(c)}
+    lacking = {c.msgtype for c in connections} - defined
+    wanted = {n for n in lacking if n in known.fielddefs}
+    if not wanted and not (lacking & set(store.fielddefs)):
+        return store
+    types = {n: d for n, d in store.fielddefs.items() if n not in lacking}
+    types.update(
+        {n: known.fielddefs[n] for n in _dependencies(wanted, known.fielddefs) if n not in types or n in wanted}
+    )
+    fresh = get_typestore(Stores.EMPTY)
+    fresh.register(types)
+    return fresh
+
+
+def undefined_types(reader: Any) -> dict[str, str]:
+    """Topic -> type of the topics whose type has no definition, neither in the recording nor
+    among the known types (their messages cannot be decoded)."""
+    have = reader.typestore.fielddefs
+    return {c.topic: c.msgtype for c in reader.connections if c.msgtype not in have}
+
+
+def open_reader(paths: Sequence[Path]) -> Any:
+    """An (unopened) ``rosbags`` reader of ``paths`` that also reads recordings without message
+    definitions (rosbag2 before Iron: bag format 4-7, sqlite3 without ``message_definitions``,
+    MCAP files with empty schemas): the types they lack are taken from :func:`known_types`. Use it
+    as a context manager, or call ``open()``."""
+    from rosbags.highlevel import AnyReader
+
+    class _Reader(AnyReader):
+        def open(self) -> None:
+            super().open()
+            try:
+                self.typestore = complete_types(self.typestore, self.connections, known_types(self.is2))
+            except BaseException:
+                self.close()
+                raise
+
+    reader = _Reader(paths)
+    reader.default_typestore = known_types(reader.is2)
+    return reader
+
 
 def velodyne_scan_topics(path: Path) -> list[str]:
     """The topics of raw Velodyne packets (``velodyne_msgs/VelodyneScan``) in a recording (none
     when it cannot be read: the PointCloud2 reader's error then stands)."""
-    from rosbags.highlevel import AnyReader
-
     try:
-        with AnyReader(reader_paths(path)) as reader:
+        with open_reader(reader_paths(path)) as reader:
             return sorted(n for n, info in reader.topics.items() if info.msgtype in VELODYNE_SCAN)
     except Exception:  # the PointCloud2 reader's error stands
         return []
@@ -585,8 +705,6 @@ class RosbagSequence:
     format = "rosbag"
 
     def __init__(self, path: str | Path, topic: str | None = None, *, organizer: Any = None) -> None:
-        from rosbags.highlevel import AnyReader
-
         self.path = Path(path)
         if not self.path.exists():
             raise DataError(f"{self.path}: no such file or directory")
@@ -608,7 +726,7 @@ class RosbagSequence:
         self.poses = None
         self._reader = None
         try:
-            self._reader = AnyReader(paths)
+            self._reader = open_reader(paths)
             self._reader.open()
         except Exception as exc:  # rosbags raises many types for damaged files
             self._reader = None
@@ -664,7 +782,10 @@ class RosbagSequence:
         """The PointCloud2 topic to read (``topic``, or the only one) and its type name."""
         types = self._topic_types()
         clouds = {name: m for name, t in types.items() for m in t if _is_pointcloud2(m)}
+        undefined = undefined_types(self._reader)
         if topic is not None:
+            if topic in undefined:
+                raise DataError(self._undefined(topic, undefined[topic]))
             if topic not in clouds:
                 all_topics = sorted(self._reader.topics)
                 raise DataError(
@@ -672,6 +793,8 @@ class RosbagSequence:
                     + ("" if clouds else f" (topics: {all_topics})")
                 )
             return topic, clouds[topic]
+        if not clouds and undefined:
+            raise DataError("; ".join(self._undefined(t, m) for t, m in sorted(undefined.items())))
         if not clouds:
             listed = ", ".join(f"{n} ({' + '.join(t)})" for n, t in sorted(types.items())[:8]) or "none"
             hints = "".join(f"; {n} holds {_hint(m)}" for n, t in sorted(types.items())[:8] for m in t if _hint(m))
@@ -682,6 +805,13 @@ class RosbagSequence:
             )
         name = next(iter(clouds))
         return name, clouds[name]
+
+    def _undefined(self, topic: str, msgtype: str) -> str:
+        """Why ``topic`` cannot be read: its type has no definition, in the recording or known."""
+        return (
+            f"{self.path}: topic {topic} has type {msgtype} with no definition in the recording and none known "
+            f"(known types: {describe_known_types(not self._ros1)})"
+        )
 
     def _index(self) -> None:
         """One pass over the topic: log times and header stamps of every message."""

@@ -495,7 +495,10 @@ class VelodynePcapSequence(SequenceBase):
     def __getitem__(self, i: int) -> Scan:
         i = int(i)
         stamp, pts = self.sweep(i)
-        i %= self._n
+        return self.scan_of(i % self._n, stamp, pts)
+
+    def scan_of(self, i: int, stamp: float, pts: np.ndarray) -> Scan:
+        """Sweep ``i`` (its stamp and decoded points) organised into a Scan (live runs too)."""
         xyz = np.column_stack([pts["x"], pts["y"], pts["z"]]).astype(np.float32)
         times = stamp + np.asarray(pts["time"], dtype=np.float64)
         ring = np.asarray(pts["ring"]).astype(np.int64)
@@ -546,13 +549,11 @@ class VelodyneScanSequence(VelodynePcapSequence):
         super().__init__(path, model=model)
 
     def _packets(self) -> Iterator[tuple[float, bytes]]:
-        from rosbags.highlevel import AnyReader
-
-        from data_tools.rosbag import reader_paths
+        from data_tools.rosbag import open_reader, reader_paths
 
         self.source = self.topic
         try:
-            with AnyReader(reader_paths(self.root)) as reader:
+            with open_reader(reader_paths(self.root)) as reader:
                 conns = [c for c in reader.connections if c.topic == self.topic]
                 for conn, _t, raw in reader.messages(connections=conns):
                     msg = reader.deserialize(raw, conn.msgtype)
