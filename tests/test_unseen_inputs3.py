@@ -1,4 +1,4 @@
-"""Inputs the project had not seen before helper-30's audit (round 3): each test generates a small
+"""Velodyne captures and recordings the project did not read at first: each test generates a small
 input in ``tmp_path`` and checks that the readers decode it right, or say clearly why they cannot.
 
 Velodyne captures as they come off a real network (simulated VLP-16 data packets, see
@@ -303,15 +303,15 @@ def one_error_line(res) -> str:
 @pytest.mark.parametrize(
     "args, needle",
     [
-        (["compare", "{kitti}", "--out", "{file}"], "--out {file}: is a file"),
-        (["mapclass", "{kitti}", "--out", "{file}"], "--out {file}: is a file"),
-        (["batch", "{kitti}", "--out", "{file}"], "--out {file}: is a file"),
-        (["classify", "{kitti}", "--labels-out", "{file}"], "--labels-out {file}: is a file"),
-        (["classify", "{kitti}", "--labels-out", "{tmp}/lab", "--json", "{file}/m.json"], "--json {file}/m.json"),
-        (["classify", "{kitti}", "--labels-out", "{tmp}/lab", "--las", "{file}/c.las"], "--las {file}/c.las"),
-        (["detect", "{kitti}", "--labels-out", "{tmp}/lab", "--json", "{tmp}"], "--json {tmp}: is a directory"),
-        (["odometry", "{kitti}", "--poses-out", "{file}/p.txt"], "--poses-out {file}/p.txt"),
-        (["filter", "{kitti}", "--out", "{file}/x"], "--out {file}/x"),
+        (["compare", "{kitti}", "--out", "{file}"], "--out: cannot write {file}: it is a file"),
+        (["mapclass", "{kitti}", "--out", "{file}"], "--out: cannot write {file}: it is a file"),
+        (["batch", "{kitti}", "--out", "{file}"], "--out: cannot write {file}: it is a file"),
+        (["classify", "{kitti}", "--labels-out", "{file}"], "--labels-out: cannot write {file}: it is a file"),
+        (["classify", "{kitti}", "--labels-out", "{tmp}/lab", "--json", "{file}/m.json"], "--json: cannot write {file}/m.json"),
+        (["classify", "{kitti}", "--labels-out", "{tmp}/lab", "--las", "{file}/c.las"], "--las: cannot write {file}/c.las"),
+        (["detect", "{kitti}", "--labels-out", "{tmp}/lab", "--json", "{tmp}"], "--json: cannot write {tmp}: it is a directory"),
+        (["odometry", "{kitti}", "--poses-out", "{file}/p.txt"], "--poses-out: cannot write {file}/p.txt"),
+        (["filter", "{kitti}", "--out", "{file}/x"], "--out: cannot write {file}/x"),
     ],
 )
 def test_an_output_path_that_cannot_be_written_is_refused_before_any_work(small_kitti, tmp_path, args, needle):
@@ -340,7 +340,7 @@ def test_a_log_file_that_cannot_be_written_is_one_line(small_kitti, tmp_path, wh
     afile.write_text("x")
     log_file = where.format(tmp=tmp_path, file=afile)
     res = CliRunner().invoke(app, ["--log-file", log_file, "classify", str(small_kitti)])
-    assert f"--log-file {log_file}" in one_error_line(res)
+    assert f"--log-file: cannot write {log_file}" in one_error_line(res)
 
 
 def test_existing_output_files_and_folders_are_replaced(small_kitti, tmp_path):
@@ -453,7 +453,7 @@ def prc_labels_of(rec: np.ndarray, **cloud_kw) -> np.ndarray:
 
 @pytest.mark.parametrize("layout", sorted(DRIVER_LAYOUTS))
 def test_driver_point_layouts_of_a_real_sweep_give_the_same_labels(layout):
-    """Round 3 tried these on ROS 1 / ROS 2 / MCAP recordings of the real VLP-16 sweep through
+    """These were tried on ROS 1 / ROS 2 / MCAP recordings of the real VLP-16 sweep through
     ``classify``: every one gave the labels of the reference layout (velodyne_pointcloud's)."""
     fields, itemsize, big = DRIVER_LAYOUTS[layout]
     ref = prc_labels_of(vlp16_records(VELODYNE_LAYOUT, 22))

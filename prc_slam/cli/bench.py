@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from prc_slam.cli.common import DEFAULT_KITTI, JSON_OPT, console, handles_errors, print_table, wrote
+from prc_slam.cli.common import DEFAULT_KITTI, JSON_OPT, check_outputs, console, handles_errors, print_table, wrote
 
 
 def register(app: typer.Typer) -> None:
@@ -23,6 +23,7 @@ def bench(
     from prc_slam.benchmark import run_bench
     from prc_slam.jobs.common import write_json
 
+    check_outputs(json_path=(json_path, "file"))
     if not (kitti / "velodyne").is_dir():
         console.print(f"[yellow]{kitti} not found: KITTI figures skipped[/yellow]")
     results = run_bench(kitti if (kitti / "velodyne").is_dir() else None)

@@ -78,32 +78,68 @@ def fail(message: str, code: int = 2) -> typer.Exit:
     return typer.Exit(code=code)
 
 
+def flag_of(name: str) -> str:
+    """The option of a parameter name: ``json_path`` → ``--json``, ``labels_out`` → ``--labels-out``."""
+    return "--" + name.removesuffix("_path").replace("_", "-")
+
+
+def _exists(path: Path) -> bool:
+    try:
+        return path.exists()
+    except OSError:  # e.g. a directory on the way that may not be searched
+        return False
+
+
+def unwritable(path: Path, kind: str) -> str | None:
+    """Why ``path`` cannot be written as ``kind`` (``file``, ``dir`` or ``any``), or None.
+
+    Asks the file system itself, not the permission bits (which say yes to root everywhere,
+    also in ``/proc``): an existing file is opened for appending (nothing written), otherwise a
+    file is created and removed in the nearest existing directory on the way."""
+    import tempfile
+
+    if kind == "dir" and _exists(path) and not path.is_dir():
+        return "it is a file; a directory is needed"
+    if kind == "file" and path.is_dir():
+        return "it is a directory; a file name is needed"
+    if kind == "file" and _exists(path):
+        try:
+            with path.open("ab"):
+                return None
+        except OSError as exc:
+            return exc.strerror or str(exc)
+    folder = path if kind != "file" and path.is_dir() else path.parent
+    while not _exists(folder) and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        return f"{folder} is a file, not a directory"
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".prc-slam-check-"):
+            return None
+    except OSError as exc:
+        return f"{exc.strerror or exc} (creating a file in {folder})"
+
+
+def check_output(flag: str, path: Path | None, kind: str = "file") -> None:
+    """Raise the one-line error ``--flag: cannot write PATH: <reason>`` (exit 2) unless ``path``
+    (None: not asked for) can be written as ``kind`` (:func:`unwritable`)."""
+    if path is None:
+        return
+    reason = unwritable(Path(path), kind)
+    if reason is not None:
+        raise fail(f"{flag}: cannot write {path}: {reason}")
+
+
 def check_outputs(**outputs: tuple[Path | None, str]) -> None:
     """Check the output paths before any work, so that a long run does not fail at its end.
 
-    ``outputs`` maps an option name (``labels_out``, shown as ``--labels-out``) to ``(path, kind)``,
-    kind ``dir`` (a directory, created later), ``file`` or ``any``. Raises the one-line error
-    naming the option when the path is a file where a directory is needed (or the reverse), when
-    an existing part of its path is a file, or when the directory that would hold it is not
-    writable."""
-    import os
-
+    ``outputs`` maps a parameter name (``labels_out``, shown as ``--labels-out``; ``json_path``
+    as ``--json``) to ``(path, kind)``, kind ``dir`` (a directory, created later), ``file`` or
+    ``any``. Raises the one-line error naming the option (:func:`check_output`) when the path is
+    a file where a directory is needed (or the reverse), when an existing part of its path is a
+    file, or when nothing can be created where it would go."""
     for name, (path, kind) in outputs.items():
-        if path is None:
-            continue
-        flag = "--" + name.replace("_path", "").replace("_", "-")
-        path = Path(path)
-        if kind == "dir" and path.exists() and not path.is_dir():
-            raise fail(f"{flag} {path}: is a file; a directory is needed")
-        if kind == "file" and path.is_dir():
-            raise fail(f"{flag} {path}: is a directory; a file name is needed")
-        parent = path if kind == "dir" and path.is_dir() else path.parent  # an existing file is replaced
-        while not parent.exists() and parent != parent.parent:
-            parent = parent.parent
-        if not parent.is_dir():
-            raise fail(f"{flag} {path}: {parent} is a file, not a directory")
-        if not os.access(parent, os.W_OK | os.X_OK):
-            raise fail(f"{flag} {path}: {parent} is not writable")
+        check_output(flag_of(name), path, kind)
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:

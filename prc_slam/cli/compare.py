@@ -46,9 +46,14 @@ from prc_slam.cli.common import (
 def warn_failed(metrics: dict) -> None:
     """One warning per odometry variant that stopped before the last frame (otherwise only
     the JSON's ``failed`` and the table's frame count would tell), and one per variant that gave
-    frames too sparse to register the predicted pose."""
+    frames too sparse to register the predicted pose; one per untrustworthy variant, and, when no
+    variant can be trusted, one line before all of them that says so."""
     total = metrics.get("frames")
+    if metrics.get("no_variant_trusted"):
+        log.warning("%s", metrics["no_variant_trusted"])
     for name, m in metrics.get("variants", {}).items():
+        if m.get("health") == "untrustworthy" and not metrics.get("no_variant_trusted"):
+            log.warning("odometry %s is untrustworthy: %s", name, m.get("health_reason"))
         if m.get("coasted_frames"):
             frames = m["coasted_frames"]
             log.warning(
@@ -100,6 +105,7 @@ def compare(
     deskew: bool = typer.Option(True, "--deskew/--no-deskew", help="KISS-ICP's constant-velocity deskewing"),
     online: bool = typer.Option(False, "--online", help="also run the online car/curb detectors and log them"),
     out: Path = typer.Option(Path("out/compare"), help="output directory"),
+    json_path: Path | None = typer.Option(None, "--json", help="also write the metrics JSON (OUT/metrics.json) here"),
     preset: Preset = typer.Option(Preset.multibeam, help="PRC parameters for the prc variant"),
     config: Path | None = typer.Option(None, help="YAML config (prc, filter, odometry sections)"),
     topic: str | None = TOPIC_OPT,
@@ -131,7 +137,7 @@ def compare(
     from prc_slam.jobs.odometry import run_odometry, write_outputs
     from prc_slam.jobs.progress import progress
 
-    check_outputs(out=(out, "dir"), rrd=(rrd, "file"))
+    check_outputs(out=(out, "dir"), json_path=(json_path, "file"), rrd=(rrd, "file"))
     names = variant_list(variants)
     if mapclass and stride > 1:
         raise ValueError("--stride: not with --mapclass (the map is accumulated from every frame's index)")
@@ -171,6 +177,8 @@ def compare(
         with (out / "report.md").open("a") as f:
             f.write(mapclass_section(mc))
         print_mapclass(mc, "map classification")
+    if json_path is not None:
+        written += write_json(json_path, run.metrics)
     wrote(written)
 
 

@@ -11,6 +11,7 @@ from prc_slam.cli.common import (
     EVERY_OPT,
     MAP_VOXEL_OPT,
     SERVE_OPT,
+    check_output,
     class_table,
     console,
     handles_errors,
@@ -43,8 +44,10 @@ def demo(
     from prc_slam.jobs.progress import progress
     from prc_slam.prc.config import PRCConfig
 
-    cfg = Config(prc=PRCConfig.preset("multibeam"))
     rrd = out.with_suffix(".rrd")
+    check_output("--out", out, "dir")
+    check_output("--out", rrd, "file")  # the recording beside OUT
+    cfg = Config(prc=PRCConfig.preset("multibeam"))
     with progress() as reporter:
         root, cached = simulated_drive(out, frames, seed, reporter)
         viewer = Viewer(rrd, connect, serve_web, log_every, map_voxel=map_voxel)

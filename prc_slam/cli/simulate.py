@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from prc_slam.cli.common import console, handles_errors
+from prc_slam.cli.common import check_outputs, console, handles_errors
 
 
 def register(app: typer.Typer) -> None:
@@ -48,6 +48,7 @@ def simulate(
     """Simulate a drive or walk with per-slot ground truth (Open3D ray casting); ``als`` and
     ``tls`` write one LAS/LAZ cloud (true class in ``classification``) to OUT (a .laz file or
     a directory)."""
+    check_outputs(out=(out, "any"), kitti=(kitti, "dir"))
     if sensor.value in ("als", "tls"):
         from data_tools.sim.airborne import simulate_cloud
 
