@@ -307,9 +307,18 @@ def one_error_line(res) -> str:
         (["mapclass", "{kitti}", "--out", "{file}"], "--out: cannot write {file}: it is a file"),
         (["batch", "{kitti}", "--out", "{file}"], "--out: cannot write {file}: it is a file"),
         (["classify", "{kitti}", "--labels-out", "{file}"], "--labels-out: cannot write {file}: it is a file"),
-        (["classify", "{kitti}", "--labels-out", "{tmp}/lab", "--json", "{file}/m.json"], "--json: cannot write {file}/m.json"),
-        (["classify", "{kitti}", "--labels-out", "{tmp}/lab", "--las", "{file}/c.las"], "--las: cannot write {file}/c.las"),
-        (["detect", "{kitti}", "--labels-out", "{tmp}/lab", "--json", "{tmp}"], "--json: cannot write {tmp}: it is a directory"),
+        (
+            ["classify", "{kitti}", "--labels-out", "{tmp}/lab", "--json", "{file}/m.json"],
+            "--json: cannot write {file}/m.json",
+        ),
+        (
+            ["classify", "{kitti}", "--labels-out", "{tmp}/lab", "--las", "{file}/c.las"],
+            "--las: cannot write {file}/c.las",
+        ),
+        (
+            ["detect", "{kitti}", "--labels-out", "{tmp}/lab", "--json", "{tmp}"],
+            "--json: cannot write {tmp}: it is a directory",
+        ),
         (["odometry", "{kitti}", "--poses-out", "{file}/p.txt"], "--poses-out: cannot write {file}/p.txt"),
         (["filter", "{kitti}", "--out", "{file}/x"], "--out: cannot write {file}/x"),
     ],
