@@ -34,6 +34,8 @@ def health_section(result: CompareResult, metrics: dict[str, Any]) -> list[str]:
     for name, m in variants.items():
         if m.get("failed"):
             status = f"**FAILED at frame {m['failed_at_frame']}**: {m['failure_reason']}"
+        elif m.get("health") == "untrustworthy":
+            status = f"**untrustworthy**: {m['health_reason']}"
         else:
             status = f"ok ({m['frames']} of {n_frames} frames)"
         first = m.get("first_suspicious_frame")
@@ -77,7 +79,7 @@ def markdown_report(result: CompareResult, metrics: dict[str, Any], title: str) 
     fields = [f for f in FIELDS if any(f in m for m in variants.values())]
     lines = [f"# {title}", "", "| variant | " + " | ".join(fields) + " |", "|---" * (len(fields) + 1) + "|"]
     for name, m in variants.items():
-        mark = " (failed)" if m.get("failed") else ""
+        mark = " (failed)" if m.get("failed") else " (untrustworthy)" if m.get("health") == "untrustworthy" else ""
         lines.append(f"| {name}{mark} | " + " | ".join(_fmt(m.get(f)) for f in fields) + " |")
     base = variants.get("raw")
     if base and base.get("ms_per_frame"):
@@ -91,6 +93,9 @@ def markdown_report(result: CompareResult, metrics: dict[str, Any], title: str) 
             if m.get("failed") or base.get("failed"):
                 parts.append("(over different frames: a variant failed)")
             lines.append(f"- `{name}`: " + ", ".join(parts))
+    if metrics.get("no_variant_trusted"):  # the run's verdict leads, right under the title
+        at = next((i + 1 for i, line in enumerate(lines) if line.startswith("# ")), 0)
+        lines[at:at] = ["", f"**{metrics['no_variant_trusted']}**"]
     lines += health_section(result, metrics)
     lines += [
         "",

@@ -131,12 +131,39 @@ def test_a_diverging_variant_on_a_sparse_walk_is_flagged_in_a_complete_report(sp
     for name in diverged:
         assert variants[name]["first_suspicious_frame"] is not None
         assert "disagrees" in variants[name]["first_suspicious_reason"]
+        # issue 35: was 'ok (7 of 7 frames)' with 6 of 7 frames flagged
+        assert variants[name]["health"] == "untrustworthy", variants[name]
+        assert variants[name]["health_reason"].startswith("6 of 7 frames suspicious, disagrees with")
     for name in held:
         assert variants[name]["suspicious_frames"] == []
+        assert variants[name]["health"] == "ok" and variants[name]["health_reason"] is None
+    assert metrics["trusted_variants"] == sorted(held) and "no_variant_trusted" not in metrics
     assert {s for d in metrics["disagreements"].values() for s in d["suspects"]} == diverged
     report = (out / "report.md").read_text()
     assert "Variants whose motions disagree" in report
     for lost in diverged:
         assert f"suspect: {lost}" in report
+        assert f"| {lost} | **untrustworthy**: 6 of 7 frames suspicious" in report
     for name in variants:  # every trajectory written, all 8 frames
         assert len((out / f"{name}_poses_kitti.txt").read_text().splitlines()) == 7
+
+
+def test_when_every_variant_is_lost_the_report_and_console_lead_with_it(sparse_walk, tmp_path):
+    """One sweep in 40 (keyframes 4 m apart): the three variants part from frame 2 on and each
+    ends 1.8-7 m off; before, each was 'ok (5 of 5 frames)' and nothing said the run was lost."""
+    out = tmp_path / "cmp"
+    args = "--variants raw,prc,prc+classaware --stride 40".split()
+    res = CliRunner().invoke(app, ["compare", str(sparse_walk), *args, "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    metrics = json.loads((out / "metrics.json").read_text())
+    variants = metrics["variants"]
+    # the case this test needs: every variant off by metres (if a change fixes one, find another stride)
+    assert all(m["ate_rmse_m"] > 1.0 for m in variants.values()), {n: m["ate_rmse_m"] for n, m in variants.items()}
+    assert all(m["health"] == "untrustworthy" for m in variants.values())
+    lead = metrics["no_variant_trusted"]
+    assert lead.startswith("no variant can be trusted on this recording: raw: ")
+    assert all(f"{name}: " in lead for name in variants)
+    report = (out / "report.md").read_text().splitlines()
+    assert report[0].startswith("# ") and next(line for line in report[1:] if line.strip()) == f"**{lead}**"
+    said = [line for line in res.output.splitlines() if line.startswith("warning: ")]
+    assert any(line == f"warning: {lead}" for line in said), res.output

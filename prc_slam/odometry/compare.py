@@ -24,6 +24,7 @@ from prc_slam.filtering import filter_points
 from prc_slam.odometry import classaware
 from prc_slam.odometry.agreement import AgreementMonitor
 from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry
+from prc_slam.odometry.guard import GuardConfig, VariantHealth, judge_variant, no_trust_line
 from prc_slam.odometry.kiss import KissOdometry
 from prc_slam.pipeline import ClassifiedFrame, NextFrame, ReadAhead, classify_frames
 from prc_slam.prc.algorithm import warm_up
@@ -113,6 +114,24 @@ class CompareResult:
     names: list[str]
     skipped: dict[str, str] = field(default_factory=dict)
     disagreements: dict[str, dict] = field(default_factory=dict)
+    guard: GuardConfig = field(default_factory=GuardConfig)
+
+    def health(self) -> dict[str, VariantHealth]:
+        """Each variant's health over the run (:func:`~prc_slam.odometry.guard.judge_variant`):
+        ok, untrustworthy (mostly suspicious frames, or disagreeing with every other variant for
+        most of the run) or failed."""
+        frames = {name: run.frames for name, run in self.runs.items()}
+        return {
+            name: judge_variant(
+                name,
+                [h.suspicious for h in run.odometry.health[: run.frames]],
+                frames,
+                self.disagreements,
+                self.guard,
+                run.failed,
+            )
+            for name, run in self.runs.items()
+        }
 
     def estimate_in_world(self, name: str) -> np.ndarray:
         """A variant's poses in the ground truth's world frame (started at its first pose); a
@@ -122,8 +141,12 @@ class CompareResult:
 
     def metrics(self) -> dict[str, Any]:
         """The ``compare`` metrics JSON of DESIGN.md (plus per-stage times, class counts, the
-        per-frame health of every variant and, for a failed variant, where and why)."""
+        per-frame health of every variant and, for a failed variant, where and why; ``health``
+        ``"ok"``, ``"untrustworthy"`` or ``"failed"`` per variant with ``health_reason``,
+        ``trusted_variants`` and, when there is none, ``no_variant_trusted``: the line that leads
+        the report)."""
         out: dict[str, Any] = {}
+        verdict = self.health()
         for name, run in self.runs.items():
             n = run.frames
             ms = run.ms_per_frame()
@@ -148,6 +171,8 @@ class CompareResult:
             flagged = [i for i, h in enumerate(health) if h.suspicious]
             first = run.first_suspicious()
             m["suspicious_frames"] = flagged
+            m["health"] = verdict[name].status
+            m["health_reason"] = verdict[name].reason or None
             m["first_suspicious_frame"] = None if first is None else first[0]
             m["first_suspicious_reason"] = None if first is None else first[1]
             m["per_frame"] = {
@@ -179,7 +204,10 @@ class CompareResult:
                 dist = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1).sum()
                 m["path_length_m"] = float(dist)
             out[name] = _json_safe(m)
-        result: dict[str, Any] = {"variants": out}
+        result: dict[str, Any] = {"variants": out, "trusted_variants": [n for n, h in verdict.items() if h.ok]}
+        lead = no_trust_line(verdict)
+        if lead is not None:
+            result["no_variant_trusted"] = lead
         if self.skipped:
             result["skipped_variants"] = dict(self.skipped)
         if self.disagreements:
@@ -483,7 +511,7 @@ class OdometryVariants:
         gt_poses = np.array(gt) if gt and all(g is not None for g in gt) else None
         return CompareResult(
             self.runs, gt_poses, np.asarray(self.times, dtype=float), self.names, self.skipped,
-            self.agreement.as_dict(),
+            self.agreement.as_dict(), self.config.odometry.guard,
         )  # fmt: skip
 
 

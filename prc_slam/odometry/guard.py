@@ -12,7 +12,9 @@ how a user learns that a run went wrong, and where).
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -60,6 +62,16 @@ class GuardConfig(BaseModel):
     agreement_deg: float = Field(2.0, gt=0, description="compare: ... and by this rotation (plus the share)")
     agreement_margin: float = Field(
         1.2, ge=1, description="compare: the variant whose last motion fits successive scans this much worse is suspect"
+    )
+    untrusted_share: float = Field(
+        0.25, ge=0, le=1, description="a variant with more than this share of its frames suspicious is untrustworthy"
+    )
+    disagreeing_share: float = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description="compare: ... as is one that disagrees with every other variant (a suspect each time) on more "
+        "than this share of the frames they both registered",
     )
 
 
@@ -252,3 +264,94 @@ class DivergenceMonitor:
         health.suspicious = bool(reasons)
         health.why = "; ".join(reasons)
         return health
+
+
+# ---- a variant's health over the whole run ---------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class VariantHealth:
+    """Whether a variant's trajectory can be trusted: ``status`` is ``"ok"``, ``"untrustworthy"``
+    or ``"failed"``; ``reason`` says why it is not ok (empty when it is)."""
+
+    status: str
+    reason: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+def judge_variant(
+    name: str,
+    suspicious: Sequence[bool],
+    frames: Mapping[str, int],
+    disagreements: Mapping[str, Mapping[str, Any]],
+    config: GuardConfig,
+    failed: Mapping[str, Any] | None = None,
+) -> VariantHealth:
+    """The health of variant ``name`` over a run (issue 35).
+
+    A frame flagged suspicious is one step of a trajectory that is a chain: every later pose is
+    composed with it, so wrong steps never average out. Isolated flags are what a sound run shows
+    (a passing vehicle, one degenerate sweep: none on the simulated drives of the tests), so the
+    variant stays ok with a few; with more than ``untrusted_share`` (a quarter) of its frames
+    flagged the doubt is the rule, not the exception, and the variant is *untrustworthy* (a real
+    VLP-16 drive without ground truth: 202-232 of 239 frames flagged per variant, variants 32-46 m
+    and 76-118 deg apart, all called ok before).
+
+    A variant that disagrees with every other variant (:mod:`~prc_slam.odometry.agreement`) on more
+    than ``disagreeing_share`` (half) of the frames they both registered, and was a suspect of each
+    of those disagreements (successive scans never cleared it), is untrustworthy too: nothing on
+    the recording confirms its motion for most of the run. A variant that disagrees with all the
+    others but was never a suspect (the others lost, successive scans side with it) stays ok.
+
+    Parameters
+    ----------
+    name : the variant judged
+    suspicious : per registered frame of ``name``, whether it was flagged
+    frames : frames registered by every variant of the run (``name`` included)
+    disagreements : ``AgreementMonitor.as_dict()``: per pair ``"a vs b"`` (sorted names) its
+        ``first_frame``, ``frames`` and ``suspects``
+    config : ``untrusted_share``, ``disagreeing_share``
+    failed : ``{"frame", "reason"}`` of a variant that stopped
+    """
+    if failed is not None:
+        return VariantHealth("failed", f"failed at frame {failed['frame']}: {failed['reason']}")
+    reasons = []
+    n, k = len(suspicious), sum(bool(s) for s in suspicious)
+    if n and k > config.untrusted_share * n:
+        reasons.append(f"{k} of {n} frames suspicious")
+    against = _disagreeing_with_all(name, frames, disagreements, config.disagreeing_share)
+    if against:
+        others = " and ".join(o for o, _, _ in against)
+        first = min(d["first_frame"] for _, d, _ in against)
+        counts = " and ".join(f"{d['frames']} of {shared}" for _, d, shared in against)
+        reasons.append(f"disagrees with {others} from frame {first} (on {counts} frames)")
+    return VariantHealth("untrustworthy", ", ".join(reasons)) if reasons else VariantHealth("ok")
+
+
+def _disagreeing_with_all(
+    name: str, frames: Mapping[str, int], disagreements: Mapping[str, Mapping[str, Any]], share: float
+) -> list[tuple[str, Mapping[str, Any], int]]:
+    """``(other, disagreement, shared frames)`` for every other variant when ``name`` disagrees
+    with each of them (as a suspect) on more than ``share`` of the frames on which they were held
+    against each other (from the second frame both registered); empty otherwise, and when no other
+    variant was held against it."""
+    found = []
+    for other in frames:
+        shared = min(frames[name], frames[other]) - 1
+        if other == name or shared < 1:
+            continue
+        d = disagreements.get(" vs ".join(sorted((name, other))))
+        if d is None or name not in d["suspects"] or d["frames"] <= share * shared:
+            return []
+        found.append((other, d, shared))
+    return found
+
+
+def no_trust_line(health: Mapping[str, VariantHealth]) -> str | None:
+    """The one line that leads the report and the console when no variant is ok (None otherwise)."""
+    if not health or any(h.ok for h in health.values()):
+        return None
+    return "no variant can be trusted on this recording: " + "; ".join(f"{n}: {h.reason}" for n, h in health.items())
