@@ -98,17 +98,27 @@ SPINNING = {
 }
 
 
-def make_sensor(name: str, lines_per_frame: int | None = None) -> SimSensor:
+def make_sensor(name: str, lines_per_frame: int | None = None, clockwise: bool = False) -> SimSensor:
     """One of :data:`SENSORS`: ``hdl64``, ``vlp16``, ``profiler-urban``, ``profiler-backpack``
-    and the beam layouts of :data:`SPINNING`."""
+    and the beam layouts of :data:`SPINNING`. ``clockwise``: a spinning sensor turns clockwise
+    seen from above (azimuth falling with the column, as a Velodyne does), for a packet capture
+    whose firing order matches the simulated firing times."""
+    spin = -1 if clockwise else 1
     if name == "hdl64":
         return SimSensor(
-            name, SpinningSensor.create(hdl64_altitudes(), 2048, sweep_period=0.1), 0.1, 1.73, 0.02, 0.9, 120.0, 0.05
+            name,
+            SpinningSensor.create(hdl64_altitudes(), 2048, direction=spin, sweep_period=0.1),
+            0.1,
+            1.73,
+            0.02,
+            0.9,
+            120.0,
+            0.05,
         )
     if name == "vlp16":
         return SimSensor(
             name,
-            SpinningSensor.create(np.radians(np.linspace(15, -15, 16)), 1800, sweep_period=0.1),
+            SpinningSensor.create(np.radians(np.linspace(15, -15, 16)), 1800, direction=spin, sweep_period=0.1),
             0.1,
             1.9,
             0.03,
@@ -134,7 +144,9 @@ def make_sensor(name: str, lines_per_frame: int | None = None) -> SimSensor:
         return SimSensor(name, model, rows / rate, 2.0, 0.01, 0.5, 80.0, 0.3, dead_angle=dead, platform="walking")
     if name in SPINNING:
         top, bottom, beams, cols, height, sigma, near, far = SPINNING[name]
-        model = SpinningSensor.create(np.radians(np.linspace(top, bottom, beams)), cols, sweep_period=0.1)
+        model = SpinningSensor.create(
+            np.radians(np.linspace(top, bottom, beams)), cols, direction=spin, sweep_period=0.1
+        )
         return SimSensor(name, model, 0.1, height, sigma, near, far, 0.05)
     if name in CLOUD_SENSORS:
         raise ValueError(f"{name} gives a point cloud, not a range-image stream: use data_tools.sim.airborne")

@@ -68,6 +68,7 @@ class SimConfig(BaseModel):
     speed: float | None = Field(None, gt=0, description="platform speed (m/s); default by platform")
     stops: int = Field(1, ge=0, description="full stops of a vehicle")
     lines_per_frame: int | None = Field(None, ge=1, description="profiler scan lines per frame")
+    clockwise: bool = Field(False, description="spinning sensor turning clockwise (as a Velodyne)")
     noise: NoiseConfig = Field(default_factory=NoiseConfig)
 
 
@@ -108,7 +109,7 @@ class Simulator:
 
     def __init__(self, config: SimConfig) -> None:
         self.config = config
-        self.sensor: SimSensor = make_sensor(config.sensor, config.lines_per_frame)
+        self.sensor: SimSensor = make_sensor(config.sensor, config.lines_per_frame, config.clockwise)
         if config.scene == "urban":
             self.scene: Scene = urban_street(config.seed)
         else:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import typer
 
-from prc_slam.cli import batch, bench, classify, compare, demo, mapclass, simulate
+from prc_slam.cli import batch, bench, classify, compare, demo, live, mapclass, replay, simulate
 from prc_slam.cli import filter as filter_cmd
 from prc_slam.cli.common import OneLineGroup, setup_logging
 
@@ -33,7 +33,7 @@ def _options(
     setup_logging(log_file, quiet)
 
 
-for _module in (classify, compare, filter_cmd, mapclass, simulate, bench, demo, batch):
+for _module in (classify, compare, filter_cmd, mapclass, simulate, bench, demo, batch, live, replay):
     _module.register(app)
 
 

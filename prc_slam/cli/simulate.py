@@ -44,11 +44,20 @@ def simulate(
     speed: float | None = typer.Option(None, min=0.0, help="platform speed (m/s); default 8.33 vehicle, 1.3 walking"),
     kitti: Path | None = typer.Option(None, help="also export KITTI/SemanticKITTI here (spinning sensors)"),
     density: float | None = typer.Option(None, min=0.1, help="als: single-pass pulse density (points/m^2, 8)"),
+    pcap: Path | None = typer.Option(
+        None, "--pcap", help="vlp16, hdl32: also write the drive as a Velodyne packet capture (UDP to port 2368)"
+    ),
 ) -> None:
     """Simulate a drive or walk with per-slot ground truth (Open3D ray casting); ``als`` and
     ``tls`` write one LAS/LAZ cloud (true class in ``classification``) to OUT (a .laz file or
-    a directory)."""
+    a directory). With ``--pcap``, the sensor spins clockwise as a Velodyne does, and its
+    sweeps are also written as VLP-16 / HDL-32E data packets (``prc-slam live``, ``replay``)."""
     check_outputs(out=(out, "any"), kitti=(kitti, "dir"))
+    if pcap is not None:
+        from data_tools.velodyne_packets import capture_format
+
+        capture_format(sensor.value)  # the one-line error for other sensors
+        check_outputs(pcap=(pcap, "file"))
     if sensor.value in ("als", "tls"):
         from data_tools.sim.airborne import simulate_cloud
 
@@ -67,11 +76,27 @@ def simulate(
         wind=wind,
         speed=speed,
         noise=NoiseConfig(outlier_rate=outlier_rate),
+        clockwise=pcap is not None,
     )
     sim = Simulator(cfg)
+    capture = None
+    if pcap is not None:
+        from data_tools.velodyne_packets import SimCapture
+
+        capture = SimCapture(pcap, sim.sensor, sensor.value)
+
+    def on_frame(frame) -> None:
+        if capture is not None:
+            capture.add(frame)
+        task.advance()
+
     with progress() as reporter:
         task = reporter.task(f"simulating {scene.value}/{sensor.value}", frames)
-        write_sequence(sim, out, on_frame=lambda _f: task.advance())
+        try:
+            write_sequence(sim, out, on_frame=on_frame)
+        finally:
+            if capture is not None:
+                capture.close()
         if kitti is not None:
             seq = SimSequence(out)
             task2 = reporter.task("KITTI export", len(seq))
@@ -79,3 +104,5 @@ def simulate(
     console.print(
         f"wrote {frames} frames to {out}" + (f" and a KITTI export to {kitti}" if kitti else ""), highlight=False
     )
+    if capture is not None:
+        console.print(f"wrote {capture.encoder.packets} Velodyne packets to {pcap}", highlight=False)
