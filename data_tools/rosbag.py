@@ -672,6 +672,20 @@ def _reader_paths(path: Path, kind: str) -> list[Path]:
     return [path]
 
 
+def _open_error(path: Path, kind: str, exc: BaseException) -> str:
+    """The one-line error of a recording that cannot be opened. A ``KeyError`` of a string is
+    ``rosbags`` meeting a message-definition encoding it does not know: rosbag2 stores
+    ``unknown`` (with no text) for a type whose definition it could not find while recording."""
+    if isinstance(exc, KeyError) and exc.args and isinstance(exc.args[0], str):
+        return (
+            f"{path}: cannot open recording: it stores a message definition in the encoding {exc.args[0]!r}, "
+            "which the rosbags reader does not know (rosbag2 writes 'unknown' for a type whose definition it "
+            "could not find while recording)"
+        )
+    hint = " (an unindexed ROS 1 bag is repaired by `rosbag reindex`)" if kind == "ros1" else ""
+    return f"{path}: cannot open recording (damaged or truncated?): {_describe_error(exc)}{hint}"
+
+
 def _describe_error(exc: BaseException) -> str:
     text = " ".join(str(a) for a in exc.args) or type(exc).__name__
     return " ".join(text.split())[:300]
@@ -730,10 +744,7 @@ class RosbagSequence:
             self._reader.open()
         except Exception as exc:  # rosbags raises many types for damaged files
             self._reader = None
-            hint = " (an unindexed ROS 1 bag is repaired by `rosbag reindex`)" if kind == "ros1" else ""
-            raise DataError(
-                f"{self.path}: cannot open recording (damaged or truncated?): {_describe_error(exc)}{hint}"
-            ) from exc
+            raise DataError(_open_error(self.path, kind, exc)) from exc
         self._ros1 = not self._reader.is2
         try:
             self.topic, self.msgtype = self._choose_topic(topic)

@@ -186,3 +186,19 @@ def test_a_topic_of_an_unknown_type_without_definition_is_named(tmp_path, layout
     assert "\n" not in msg and str(old) in msg, msg
     assert "topic /points has type foo_msgs/msg/Bar with no definition in the recording and none known" in msg
     assert "sensor_msgs/msg/PointCloud2" in msg and "velodyne_msgs/msg/VelodyneScan" in msg
+
+
+def test_a_definition_stored_as_unknown_is_named_not_called_damage(tmp_path):
+    """rosbag2 (Iron on) stores the encoding 'unknown' for a type whose definition it could not
+    find while recording; rosbags cannot open such a recording. Before: 'cannot open recording
+    (damaged or truncated?): unknown'."""
+    msgs, _ = ros2_sweeps(frames=2)
+    bag = write_ros2(tmp_path / "bag", msgs)
+    (db,) = bag.glob("*.db3")
+    with sqlite3.connect(db) as c:
+        c.execute("UPDATE message_definitions SET encoding = 'unknown', encoded_message_definition = ''")
+    with pytest.raises(DataError) as exc:
+        open_dataset(bag)
+    msg = str(exc.value)
+    assert "\n" not in msg and str(bag) in msg and "damaged" not in msg, msg
+    assert "message definition in the encoding 'unknown'" in msg
