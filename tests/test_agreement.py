@@ -131,7 +131,7 @@ def test_a_diverging_variant_on_a_sparse_walk_is_flagged_in_a_complete_report(sp
     for name in diverged:
         assert variants[name]["first_suspicious_frame"] is not None
         assert "disagrees" in variants[name]["first_suspicious_reason"]
-        # issue 35: was 'ok (7 of 7 frames)' with 6 of 7 frames flagged
+        # 6 of 7 frames flagged: not 'ok (7 of 7 frames)'
         assert variants[name]["health"] == "untrustworthy", variants[name]
         assert variants[name]["health_reason"].startswith("6 of 7 frames suspicious, disagrees with")
     for name in held:

@@ -1,4 +1,4 @@
-"""A variant's health over a whole run (issue 35, defect 5): a variant whose frames are mostly
+"""A variant's health over a whole run: a variant whose frames are mostly
 suspicious, or that disagrees with every other variant for most of the run, is not "ok"; when no
 variant is ok, report.md, metrics.json and the console lead with one line saying so."""
 

@@ -2,7 +2,7 @@
 Humble: bag format 1-5 metadata without ``type_description_hash``, sqlite3 storage without a
 ``message_definitions`` table, MCAP files with empty schemas) are read with the standard ROS 2
 types and the packet types the reader knows; a topic whose type is neither defined nor known is
-refused with one line naming it (issue 35, defect 6).
+refused with one line naming it.
 
 Every fixture is written here: a bag of the current format (with definitions) by ``rosbags``, and
 the same messages, byte for byte, in the layout of an older ROS 2 release."""

@@ -290,15 +290,15 @@ def judge_variant(
     config: GuardConfig,
     failed: Mapping[str, Any] | None = None,
 ) -> VariantHealth:
-    """The health of variant ``name`` over a run (issue 35).
+    """The health of variant ``name`` over a run.
 
     A frame flagged suspicious is one step of a trajectory that is a chain: every later pose is
     composed with it, so wrong steps never average out. Isolated flags are what a sound run shows
     (a passing vehicle, one degenerate sweep: none on the simulated drives of the tests), so the
     variant stays ok with a few; with more than ``untrusted_share`` (a quarter) of its frames
-    flagged the doubt is the rule, not the exception, and the variant is *untrustworthy* (a real
-    VLP-16 drive without ground truth: 202-232 of 239 frames flagged per variant, variants 32-46 m
-    and 76-118 deg apart, all called ok before).
+    flagged the doubt is the rule, not the exception, and the variant is *untrustworthy* (a simulated
+    VLP-16 walk read one sweep in 30: raw and prc+classaware 7.7 and 5.1 m off with 6 of 7 frames
+    flagged, prc 0.05 m off with none).
 
     A variant that disagrees with every other variant (:mod:`~prc_slam.odometry.agreement`) on more
     than ``disagreeing_share`` (half) of the frames they both registered, and was a suspect of each
