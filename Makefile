@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test bench lint system-deps clean clean-cache
+.PHONY: setup demo test bench lint docs system-deps clean clean-cache
 
 $(STAMP): pyproject.toml
 	bash scripts/ensure_system_deps.sh
@@ -27,6 +27,10 @@ test: setup
 
 bench: setup
 	$(VENV)/bin/prc-slam bench --json out/bench.json
+
+# the documentation site (mkdocs.yml), into out/site; `make test` builds it too (tests/test_docs.py)
+docs: setup
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir out/site
 
 lint: setup
 	$(VENV)/bin/ruff check .

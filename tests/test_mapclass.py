@@ -660,7 +660,7 @@ def test_simulated_urban_map(urban_map):
     res = classify_map(urban_map.points)
     s = score_map(res.labels, urban_map.attributes["ref"], urban_map.attributes["inst"])
     pc = s["per_class"]
-    # measured on this drive (30 hdl64 frames, seed 2): ground 0.97 / 0.99, building 0.99 / 0.90,
+    # measured on this drive (30 hdl64 frames, seed 2): ground: 0.97 / 0.99, building 0.99 / 0.90,
     # vehicle 0.99 / 0.91
     assert pc["ground"]["precision"] > 0.95 and pc["ground"]["recall"] > 0.95
     assert pc["building"]["precision"] > 0.95 and pc["building"]["recall"] > 0.85

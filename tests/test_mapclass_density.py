@@ -242,7 +242,7 @@ def test_als_urban_classified_at_its_density(als_urban):
     res = classify_map(c.points)
     s = score_map(res.labels, c.labels)
     pc = s["per_class"]
-    # measured on this cloud: ground 0.99 / 0.99, building 0.99 / 0.96, false noise 0.2 %
+    # measured on this cloud: ground: 0.99 / 0.99, building 0.99 / 0.96, false noise 0.2 %
     assert pc["ground"]["precision"] >= 0.95 and pc["ground"]["recall"] >= 0.9
     assert pc["building"]["precision"] >= 0.85 and pc["building"]["recall"] >= 0.85
     assert s["noise_share"] <= 0.01
@@ -287,7 +287,7 @@ def test_tls_forest_plot_stems_are_trunk():
     assert (c.labels == L.TRUNK).sum() > 1000
     res = classify_map(c.points, MapClassConfig(mode="forest"))
     s = score_map(res.labels, c.labels, mode="forest")
-    # measured on this plot: trunk 0.80 / 0.88, ground 0.99 / 0.99
+    # measured on this plot: trunk 0.80 / 0.88, ground: 0.99 / 0.99
     assert s["per_class"]["trunk"]["precision"] >= 0.7 and s["per_class"]["trunk"]["recall"] >= 0.5
     assert s["per_class"]["ground"]["precision"] >= 0.95
     assert s["noise_share"] < 0.05

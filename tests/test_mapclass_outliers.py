@@ -1,4 +1,4 @@
-"""Map classification of clouds with many outliers (session 32): the Sec. 3.1 threshold taken
+"""Map classification of clouds with many outliers: the Sec. 3.1 threshold taken
 relative to the surfaces' density, not the outliers' own, and Sec. 4.1's terrain height taken
 from a cell's lowest *supported* point, so that returns just under the ground (which borrow the
 ground's density) cannot take the ground of the cells around them."""

@@ -150,7 +150,7 @@ def test_profiler_lines_start_at_the_lowest_point():
 
 
 def test_profiler_lines_start_on_the_ground_near_the_scanner():
-    """Ground 2 m below the scanner up to y = 12 m, then 2 m lower: the lowest return of the
+    """Ground: 2 m below the scanner up to y = 12 m, then 2 m lower: the lowest return of the
     line is far across the drop, but the line starts on the street (``start_radius`` 10 m)."""
     cols = 720
     theta = 2 * np.pi * np.arange(cols) / cols

@@ -2,7 +2,7 @@
 
 Six simulated urban sweeps per case, vehicle precision / recall per point against the simulator's
 truth. The floors sit a little under what the detectors reach; those marked *fixed* fail on the
-code before audit round 7:
+code before the fine-beam changes:
 
 - ``os2-128`` (128 beams over +-11.25 deg): step 6's vegetation share came from the coarse
   classifier's successive differences up a column, and at 0.18 deg between beams a car's face

@@ -57,7 +57,7 @@ def test_empty_and_bad_input():
 
 
 def _street(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """A flat ground 1.7 m below the sensor with two boxes and a wall; truth: ground mask."""
+    """A flat ground, 1.7 m below the sensor with two boxes and a wall; truth: ground mask."""
     g = rng.uniform(-30, 30, (20000, 2))
     g = g[np.hypot(g[:, 0], g[:, 1]) > 3.0]
     ground = np.column_stack([g, -1.7 + rng.normal(0, 0.01, len(g))])

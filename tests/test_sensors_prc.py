@@ -6,7 +6,7 @@ noise; forest ground / trunk, solid points called noise:
 hdl64 0.966 / 0.892, 1.5 %; 0.989 / 0.801, 4.7 % -- vlp16 0.885 / 0.897, 1.7 %; 0.803 / 0.697, 10.1 %
 -- hdl32 0.955 / 0.919, 1.0 %; 0.988 / 0.785, 4.1 % -- os1-64 0.963 / 0.899, 1.1 %; 0.985 / 0.619,
 5.3 % -- os0-128 0.976 / 0.891, 0.7 %; 0.993 / 0.674, 4.2 % -- os2-128 0.944 / 0.845, 3.2 %; 0.800 /
-0.814, 12.6 %. Of vlp16's forest points called noise: vegetation 44 %, trunk 39 %, ground 17 %
+0.814, 12.6 %. Of vlp16's forest points called noise: vegetation 44 %, trunk 39 %, ground: 17 %
 (isolated returns between sparse beams: left for a later issue).
 """
 

@@ -1,4 +1,4 @@
-"""Inputs the project had not seen before helper-28's audit: each test generates a small input in
+"""Inputs from sensors and tools the project did not read at first: each test generates a small input in
 ``tmp_path`` and checks the readers organise it right, or say clearly why they cannot.
 
 - PCD sweeps whose per-point times restart with every sweep (Ouster ``t``, Livox ``offset_time``,

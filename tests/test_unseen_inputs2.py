@@ -1,4 +1,4 @@
-"""Inputs the project had not seen before helper-29's audit (round 2 after helper-28's
+"""More inputs the project did not read at first (after
 ``test_unseen_inputs.py``): each test generates a small input in ``tmp_path`` and checks that the
 readers, writers and jobs either give the right result or say clearly why they cannot.
 

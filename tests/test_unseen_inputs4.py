@@ -1,4 +1,4 @@
-"""Inputs the project had not seen before helper-31's audit (round 4, after
+"""More inputs the project did not read at first (after
 ``test_unseen_inputs.py`` .. ``test_unseen_inputs3.py``): each test generates a small input in
 ``tmp_path`` and checks that the readers, writers and jobs either give the right result or say
 clearly why they cannot.

@@ -1,4 +1,4 @@
-"""Sequences the project had not seen before helper-21's audit (round 6, ``compare`` and
+"""Sequences the odometry commands did not handle at first (``compare`` and
 ``odometry``): each test builds a small sequence in ``tmp_path`` (KITTI 00 sweeps copied and
 rearranged, the decoded Ouster sweeps) and checks that every variant finishes or is marked failed
 with a reason, that a divergence is flagged, and that the outputs say nothing false.
