@@ -208,3 +208,38 @@ def test_sigterm_stops_and_closes_every_output(capture, tmp_path):
     assert len(filtered) == m["frames"]
     assert len(filtered[0].points()) > 1000
     assert len((tmp_path / "p.txt").read_text().splitlines()) == m["frames"]
+
+
+OUSTER = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ouster" / "pcaps"
+
+
+def test_ouster_packets_labelled_as_offline(tmp_path):
+    """A shared Ouster capture replayed twice into ouster://: each sweep's PRC labels are those of
+    the offline reading of the capture."""
+    from data_tools.ouster_pcap import OusterPcapSequence
+    from prc_slam.jobs.sinks import LabelFiles
+    from prc_slam.pipeline import Pipeline
+
+    pcap = OUSTER / "OS-0-128-U1_v2.3.0_1024x10.pcap"
+    if not pcap.is_file():
+        pytest.skip(f"shared Ouster capture not found: {pcap}")
+    meta = pcap.with_suffix(".json")
+    Pipeline(prc=config().prc, sinks=[LabelFiles(tmp_path / "offline")]).run(iter(OusterPcapSequence(pcap)))
+    threads = []
+
+    def on_ready(rx):
+        threads.append(threading.Thread(target=replay, args=(pcap, LOOPBACK, rx.port), kwargs={"loop": 2}))
+        threads[0].start()
+
+    try:
+        run = run_live(
+            Source("ouster", LOOPBACK, 0), config(), LiveOptions(timeout=1.5, queue=100, meta=meta),
+            labels_out=tmp_path / "live", on_ready=on_ready,
+        )  # fmt: skip
+    finally:
+        for t in threads:
+            t.join(timeout=10)
+    assert run.metrics["frames"] == 2 and run.metrics["lost_packets"] == 0
+    want = np.fromfile(tmp_path / "offline" / "000000.label", np.uint32)
+    for name in ("000000.label", "000001.label"):
+        assert np.array_equal(np.fromfile(tmp_path / "live" / name, np.uint32), want)

@@ -75,6 +75,9 @@ def live(
     log_every: int = EVERY_OPT,
     out: Path | None = typer.Option(None, "--out", help="write the filtered stream here (.mcap), as the run goes"),
     poses_out: Path | None = typer.Option(None, "--poses-out", help="write the poses here (TUM), as the run goes"),
+    labels_out: Path | None = typer.Option(
+        None, "--labels-out", help="write each sweep's PRC labels here (NNNNNN.label, as classify does)"
+    ),
     json_path: Path | None = JSON_OPT,
 ) -> None:
     """Run PRC, the filter and KISS-ICP on a sensor's sweeps as they arrive, and watch them live.
@@ -94,7 +97,10 @@ def live(
         raise ValueError("--meta: ouster:// needs the sensor's metadata json (--meta sensor.json)")
     if out is not None and out.suffix.lower() != ".mcap":
         raise ValueError(f"--out {out}: the filtered stream is written as MCAP: give a .mcap name")
-    check_outputs(rrd=(rrd, "file"), out=(out, "file"), poses_out=(poses_out, "file"), json_path=(json_path, "file"))
+    check_outputs(
+        rrd=(rrd, "file"), out=(out, "file"), poses_out=(poses_out, "file"), json_path=(json_path, "file"),
+        labels_out=(labels_out, "dir"),
+    )  # fmt: skip
     cfg = run_config(preset, config)
     opts = LiveOptions(
         variant=variant.value, online=online, timeout=timeout, queue=queue, realtime_rate=rate,
@@ -102,7 +108,7 @@ def live(
         open_options={"meta": meta} if (src.kind == "file" and meta is not None) else {},
     )  # fmt: skip
     viewer = Viewer(rrd, connect, serve_web, log_every, spawn=spawn)
-    run = run_live(src, cfg, opts, viewer=viewer, poses_out=poses_out, filtered_out=out)
+    run = run_live(src, cfg, opts, viewer=viewer, poses_out=poses_out, filtered_out=out, labels_out=labels_out)
     console.print(summary_line(run.metrics), highlight=False)
     written = list(run.written)
     if json_path is not None:

@@ -365,12 +365,15 @@ def run_live(
     viewer: Any = None,
     poses_out: Path | None = None,
     filtered_out: Path | None = None,
+    labels_out: Path | None = None,
     on_ready: Any = None,
 ) -> LiveRun:
     """Receive ``source`` and run every sweep through PRC, the filter and the variant's KISS-ICP
     (and the online detectors with ``opts.online``) into the sinks, until stopped.
 
-    ``on_ready(receiver)`` is called once the source listens (its ``port`` is bound)."""
+    ``labels_out``: one ``NNNNNN.label`` per sweep (PRC codes, the offline ``--labels-out``
+    format; ``NNNNNN`` the sweep's number in the source). ``on_ready(receiver)`` is called once
+    the source listens (its ``port`` is bound)."""
     from prc_slam.jobs.common import Viewer
     from prc_slam.jobs.sinks import ViewerSink
     from prc_slam.odometry.compare import OdometryVariants
@@ -401,6 +404,11 @@ def run_live(
     mcap = None if filtered_out is None else FilteredMcap(filtered_out, opts.variant)
     if mcap is not None:
         sinks.append(mcap)
+    if labels_out is not None and stage.needs_prc:
+        from prc_slam.jobs.sinks import LabelFiles
+
+        Path(labels_out).mkdir(parents=True, exist_ok=True)
+        sinks.append(LabelFiles(labels_out))
     timed = TimedSinks(sinks, status, opts.variant)
     pipe = LivePipeline(prc=config.prc if stage.needs_prc else None, online=detector, odometry=stage, sinks=[timed])
     result = None
