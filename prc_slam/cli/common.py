@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import functools
+import inspect
 import logging
+import re
 import sys
 from collections.abc import Callable
 from enum import Enum
@@ -184,8 +186,55 @@ def handles_errors(fn: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
+def plain_help(text: str | None) -> str | None:
+    """A docstring as help text: its paragraphs each on one line (the help wraps them to the
+    terminal; a docstring's own line breaks would stay in the command list), RST literals
+    (````--online````) as plain text."""
+    if not text:
+        return text
+    paragraphs = [" ".join(p.split()) for p in inspect.cleandoc(text).split("\n\n")]
+    return re.sub(r"``(.+?)``", r"\1", "\n\n".join(p for p in paragraphs if p))
+
+
+def value_label(param: Any, ctx: Any) -> str | None:
+    """What an option's value is, as the help shows it: nothing for a flag (typer's ``<bool>``:
+    a flag takes no value), choices with spaces between them so that a narrow help can wrap
+    them (``<auto | ring | order | beams>``), ``<int>`` for a number in a range (the range is
+    shown beside it), else typer's own label."""
+    if getattr(param, "is_flag", False):
+        return ""
+    display = getattr(param, "display_type", None)
+    if param.metavar is not None or display is None:
+        return param.metavar
+    label = display(ctx)
+    if "|" in label:
+        return " | ".join(label.split("|"))
+    return label.replace(" range>", ">")
+
+
+def tidy_help(command: Any, ctx: Any) -> Any:
+    """``command`` with :func:`plain_help` texts and :func:`value_label` labels."""
+    command.help = plain_help(command.help)
+    command.short_help = plain_help(command.short_help)
+    for param in command.get_params(ctx):
+        if getattr(param, "help", None):
+            param.help = plain_help(param.help)
+        if getattr(param, "param_type_name", "") == "option":  # (an argument's metavar is its name)
+            param.metavar = value_label(param, ctx)
+    return command
+
+
 class OneLineGroup(typer.core.TyperGroup):
-    """Usage errors (unknown option, value out of range) as one line, exit 2; Ctrl-C exit 130."""
+    """Usage errors (unknown option, value out of range) as one line, exit 2; Ctrl-C exit 130;
+    help texts tidied (:func:`tidy_help`)."""
+
+    def get_command(self, ctx, cmd_name):  # type: ignore[override]
+        command = super().get_command(ctx, cmd_name)
+        return None if command is None else tidy_help(command, ctx)
+
+    def format_help(self, ctx, formatter):  # type: ignore[override]
+        tidy_help(self, ctx)
+        return super().format_help(ctx, formatter)
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):  # type: ignore[override]
         _reported.clear()
@@ -340,7 +389,9 @@ def wrote(paths) -> None:
 
 
 RRD_OPT = typer.Option(None, "--rrd", help="write a Rerun recording (.rrd) here")
-CONNECT_OPT = typer.Option(None, "--connect", help="stream to a running Rerun viewer (rerun+http://host:9876/proxy)")
+CONNECT_OPT = typer.Option(
+    None, "--connect", help="stream to a running Rerun viewer at this URL (rerun+http, port 9876, path /proxy)"
+)
 SERVE_OPT = typer.Option(False, "--serve-web", help="serve the Rerun web viewer on localhost and print its address")
 EVERY_OPT = typer.Option(5, "--log-every", min=1, help="log clouds and images on every n-th frame")
 MAP_VOXEL_OPT = typer.Option(0.5, "--map-voxel", min=0.0, help="thin the logged local map to this voxel (m)")

@@ -113,7 +113,7 @@ def mapclass(
     ),
     margin: float = typer.Option(6.0, min=0.0, help="context around each tile (m)"),
     scheduler: str | None = typer.Option(
-        None, "--scheduler", help="run the tiles on a Dask scheduler (tcp://HOST:8786; or $DASK_SCHEDULER_ADDRESS)"
+        None, "--scheduler", help="run the tiles on the Dask scheduler at this address (tcp://HOST:8786)"
     ),
     workers: int | None = typer.Option(None, "--workers", min=1, help="run the tiles on a local Dask cluster"),
     laz: bool = typer.Option(False, "--laz", help="write the combined and per-class clouds as LAZ"),
@@ -138,7 +138,10 @@ def mapclass(
     map_voxel: float = typer.Option(0.2, "--map-voxel", min=0.0, help="thin the logged map to this voxel (m)"),
 ) -> None:
     """Classify a registered map after registration (paper 004) and segregate it into
-    per-class LAS files; scored against reference labels when a sequence has them."""
+    per-class LAS files; scored against reference labels when a sequence has them.
+
+    The tiles run on a Dask cluster with --scheduler or --workers, and on the scheduler at
+    $DASK_SCHEDULER_ADDRESS when that is set."""
     from data_tools.clouds import is_cloud_file
     from prc_slam.config import Config
     from prc_slam.jobs.common import Viewer, write_json
