@@ -190,13 +190,15 @@ def test_batch_outputs_identical_to_single_runs(client, sims, tmp_path):
     write_outputs(run, cfg, alone, f"Odometry comparison on {sims[0]}")
     mine = out / sims[0].name
     assert sorted(p.name for p in alone.iterdir()) == sorted(p.name for p in mine.iterdir() if p.name != ROW_FILE)
+    # the worker runs KISS-ICP on its share of the cores, the run alone on all of them: threaded
+    # reductions sum in another order, the 6x6 solves (condition up to ~1e6) give the last bits
+    # times that, so poses to 1e-7 relative (1e-9 m absolute), the errors derived from their
+    # differences to 1e-6, every integer and label exactly
     for name in ("raw_poses_kitti.txt", "raw_poses_tum.txt", "prc_poses_kitti.txt", "prc_poses_tum.txt"):
-        assert (alone / name).read_bytes() == (mine / name).read_bytes(), name
+        np.testing.assert_allclose(np.loadtxt(alone / name), np.loadtxt(mine / name), rtol=1e-7, atol=1e-9)
     assert (alone / "config.yaml").read_bytes() == (mine / "config.yaml").read_bytes()
-    # metrics minus timings; odometry floats to 1e-9 (two runs of one input in one process differ
-    # in the last bits already: KISS-ICP reduces over threads), every integer and label exactly
     a, b = (json.loads((d / "metrics.json").read_text()) for d in (alone, mine))
-    assert _differences(_no_timings(a), _no_timings(b), rtol=1e-9) == []
+    assert _differences(_no_timings(a), _no_timings(b), rtol=1e-6) == []
     assert rows[sims[0].name]["ate_rmse_m"]["prc"] == b["variants"]["prc"]["ate_rmse_m"]
 
     # classify, alone (`prc-slam classify IN --labels-out DIR/labels --json DIR/metrics.json`)

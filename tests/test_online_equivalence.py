@@ -339,11 +339,21 @@ def test_boxes_in_one_kernel_are_oriented_box(seed, dtype, on_a_line):
     got = oriented_boxes_of(ids, pts)
     ref = [oriented_box(pts[ids == k]) for k in range(1, n + 1) if (ids == k).any()]
     assert len(got) == len(ref)
-    for g, r in zip(got, ref, strict=True):
+    for k, g, r in zip(np.unique(ids[ids > 0]), got, ref, strict=True):
         assert g["points"] == r["points"]
-        np.testing.assert_allclose(
-            g["center"] + g["size"] + [g["yaw"]], r["center"] + r["size"] + [r["yaw"]], atol=1e-9
-        )
+        np.testing.assert_allclose([g["center"][2], g["size"][2]], [r["center"][2], r["size"][2]], atol=1e-9)
+        # the axis moves by at most |dA| / gap (Davis-Kahan), |dA| the covariance's rounding (the
+        # summation order of np.cov's BLAS product against the kernel's loop: below 1e-12 |A| for
+        # 300 points); centre and size in the plane move with it times the footprint's extent
+        xy = pts[ids == k, :2].astype(np.float64)
+        w = np.linalg.eigvalsh(np.cov(xy.T)) if len(xy) > 2 else np.ones(2)
+        spread = (w[1] + w[0]) / (w[1] - w[0]) if w[1] > w[0] else np.inf
+        if spread > 1e6:  # a round footprint: no axis to compare
+            continue
+        turn = 1e-9 + 1e-12 * spread
+        extent = np.abs(xy - xy.mean(axis=0)).max() + 1.0
+        assert abs(g["yaw"] - r["yaw"]) <= turn
+        np.testing.assert_allclose(g["center"][:2] + g["size"][:2], r["center"][:2] + r["size"][:2], atol=turn * extent)
     assert oriented_boxes_of(np.zeros(3, np.int64), np.zeros((3, 3))) == []
 
 
