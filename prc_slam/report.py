@@ -15,12 +15,80 @@ from prc_slam.odometry.compare import CompareResult
 FIELDS = ("ate_rmse_m", "rpe_trans_m", "kitti_trans_pct", "ms_per_frame", "points_in", "points_to_icp", "frames")
 
 
+#: said of a class a method never outputs, instead of scores that are 0 (or undefined) by construction
+NOT_OUTPUT = "not output by this method"
+
+
 def _fmt(v: Any) -> str:
     if v is None:
         return "-"
     if isinstance(v, float):
         return f"{v:.4g}" if abs(v) < 1000 else f"{v:,.0f}"
     return str(v)
+
+
+def too_short_for_kitti(m: dict[str, Any]) -> bool:
+    """Whether a variant has no KITTI drift because its path is shorter than KITTI's shortest
+    segment (100 m): the devkit's error is a mean over segments of 100 to 800 m."""
+    path = m.get("path_length_m")
+    return m.get("kitti_trans_pct") is None and path is not None and path < E.KITTI_LENGTHS[0]
+
+
+def variant_cell(m: dict[str, Any], field: str) -> str:
+    """One cell of the variants table: ``-`` says why where a figure is missing for a reason a
+    reader would not guess (the KITTI drift of a path under 100 m)."""
+    if field == "kitti_trans_pct" and too_short_for_kitti(m):
+        return f"- (path < {E.KITTI_LENGTHS[0]} m)"
+    return _fmt(m.get(field))
+
+
+def kitti_note(variants: dict[str, dict[str, Any]]) -> list[str]:
+    """Markdown lines under the variants table when the KITTI drift is missing for a short path."""
+    short = [m["path_length_m"] for m in variants.values() if too_short_for_kitti(m)]
+    if not short:
+        return []
+    lo, hi = E.KITTI_LENGTHS[0], E.KITTI_LENGTHS[-1]
+    return [
+        "",
+        f"`kitti_trans_pct` is `-` because the path is {max(short):.1f} m long: KITTI's drift is the mean "
+        f"relative error over path segments of {lo} to {hi} m, and no segment of {lo} m fits in it.",
+    ]
+
+
+def class_rows(per_class: dict[str, dict[str, Any]], fmt) -> list[tuple[str, int, str, str, str]]:
+    """Rows ``(class, support, precision, recall, f1)`` of a per-class score table, scores
+    formatted by ``fmt``. A class the method never outputs (no precision: nothing labelled so,
+    while the reference has points of it) is named so, its scores ``-`` (its recall and F1 are 0
+    by construction, not by a mistake); a class it outputs but gets wrong keeps its 0."""
+    rows = []
+    for name, s in per_class.items():
+        support = int(s.get("support") or 0)
+        if s.get("precision") is None and support:
+            rows.append((f"{name} ({NOT_OUTPUT})", support, "-", "-", "-"))
+        else:
+            rows.append((name, support, *(fmt(s.get(k)) for k in ("precision", "recall", "f1"))))
+    return rows
+
+
+def icp_share_rows(m: dict[str, Any]) -> list[str]:
+    """Markdown: points per class in and to ICP with the share that reached it, and why noise
+    reaches it at all."""
+    kept = m["points_kept_per_class"]
+    lines = ["| class | in | to ICP | share to ICP |", "|---|---|---|---|"]
+    for cls, n in m["points_in_per_class"].items():
+        k = kept.get(cls, 0)
+        lines.append(f"| {cls} | {n} | {k} | {k / n:.0%} |" if n else f"| {cls} | {n} | {k} | - |")
+    noise_in, noise_kept = m["points_in_per_class"].get("noise", 0), kept.get("noise", 0)
+    if noise_kept:
+        lines += [
+            "",
+            f"Noise is dropped except on purpose: {noise_kept:,} of the {noise_in:,} noise-labelled points "
+            f"({noise_kept / noise_in:.0%}) reached ICP. They are PRC's one-sided returns, which meet one of the two "
+            "support conditions of eq. (4) (thin poles, trunks, edges seen from one side): they are labelled noise "
+            "but kept (`filter.keep_one_sided`, `prc_slam.filtering`), since dropping them would remove the thin "
+            "structures that anchor the registration.",
+        ]
+    return lines
 
 
 def health_section(result: CompareResult, metrics: dict[str, Any]) -> list[str]:
@@ -80,7 +148,8 @@ def markdown_report(result: CompareResult, metrics: dict[str, Any], title: str) 
     lines = [f"# {title}", "", "| variant | " + " | ".join(fields) + " |", "|---" * (len(fields) + 1) + "|"]
     for name, m in variants.items():
         mark = " (failed)" if m.get("failed") else " (untrustworthy)" if m.get("health") == "untrustworthy" else ""
-        lines.append(f"| {name}{mark} | " + " | ".join(_fmt(m.get(f)) for f in fields) + " |")
+        lines.append(f"| {name}{mark} | " + " | ".join(variant_cell(m, f) for f in fields) + " |")
+    lines += kitti_note(variants)
     base = variants.get("raw")
     if base and base.get("ms_per_frame"):
         lines += ["", "Relative to `raw`:", ""]
@@ -113,9 +182,7 @@ def markdown_report(result: CompareResult, metrics: dict[str, Any], title: str) 
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     for name, m in variants.items():
         if "points_in_per_class" in m:
-            lines += ["", f"## Points per class, `{name}` (all frames)", "", "| class | in | to ICP |", "|---|---|---|"]
-            for cls, n in m["points_in_per_class"].items():
-                lines.append(f"| {cls} | {n} | {m['points_kept_per_class'].get(cls, 0)} |")
+            lines += ["", f"## Points per class, `{name}` (all frames)", "", *icp_share_rows(m)]
     if result.gt_poses is None:
         lines += ["", "No ground truth: error fields omitted."]
     return "\n".join(lines) + "\n"
@@ -207,9 +274,8 @@ def mapclass_section(mc: dict[str, Any]) -> str:
 
     def table(per_class: dict[str, dict[str, Any]]) -> list[str]:
         rows = ["| class | support | precision | recall | f1 |", "|---|---|---|---|---|"]
-        for name, s in per_class.items():
-            vals = [_fmt(s[k]) if s[k] is not None else "-" for k in ("precision", "recall", "f1")]
-            rows.append(f"| {name} | {s['support']:,} | " + " | ".join(vals) + " |")
+        for name, support, *vals in class_rows(per_class, _fmt):
+            rows.append(f"| {name} | {support:,} | " + " | ".join(vals) + " |")
         return rows
 
     lines = [
@@ -243,9 +309,8 @@ def classification_section(metrics: dict[str, Any], title: str) -> str:
     if not per_class:
         return "\n".join([*lines, "No reference labels in this input.", ""]) + "\n"
     lines += ["| class | support | precision | recall | f1 |", "|---|---|---|---|---|"]
-    for name, s in per_class.items():
-        vals = [_fmt(s[k]) for k in ("precision", "recall", "f1")]
-        lines.append(f"| {name} | {s['support']:,} | " + " | ".join(vals) + " |")
+    for name, support, *vals in class_rows(per_class, _fmt):
+        lines.append(f"| {name} | {support:,} | " + " | ".join(vals) + " |")
     if "noise_in_solid_classes" in metrics:
         lines += ["", f"Reference solid-class points labelled noise: {metrics['noise_in_solid_classes']:.3%}"]
     for name, o in metrics.get("objects", {}).items():

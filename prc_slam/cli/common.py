@@ -312,7 +312,10 @@ def print_table(table: Table) -> None:
 
 
 def class_table(metrics: dict[str, Any], title: str) -> Table:
-    """Per-class precision / recall / F1."""
+    """Per-class precision / recall / F1; a class the method never outputs is said so, with no
+    scores (:func:`prc_slam.report.class_rows`)."""
+    from prc_slam.report import class_rows
+
     table = Table(title=title)
     for col in ("class", "support", "precision", "recall", "f1"):
         table.add_column(col, justify="right" if col != "class" else "left")
@@ -320,13 +323,14 @@ def class_table(metrics: dict[str, Any], title: str) -> Table:
     def fmt(v: float | None) -> str:
         return "-" if v is None else f"{v:.3f}"
 
-    for name, s in metrics.get("per_class", {}).items():
-        table.add_row(name, str(s["support"]), fmt(s["precision"]), fmt(s["recall"]), fmt(s["f1"]))
+    for name, support, *scores in class_rows(metrics.get("per_class", {}), fmt):
+        table.add_row(name, str(support), *scores)
     return table
 
 
 def variant_table(metrics: dict[str, Any], title: str) -> Table:
-    from prc_slam.report import FIELDS, _fmt
+    """The odometry variants' figures; a missing KITTI drift says why (:func:`prc_slam.report.variant_cell`)."""
+    from prc_slam.report import FIELDS, variant_cell
 
     variants = metrics["variants"]
     fields = [f for f in FIELDS if any(f in m for m in variants.values())]
@@ -335,7 +339,7 @@ def variant_table(metrics: dict[str, Any], title: str) -> Table:
     for f in fields:
         table.add_column(f, justify="right")
     for name, m in variants.items():
-        table.add_row(name, *(_fmt(m.get(f)) for f in fields))
+        table.add_row(name, *(variant_cell(m, f) for f in fields))
     return table
 
 
