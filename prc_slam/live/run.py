@@ -11,6 +11,7 @@ finished, then every output is flushed and closed.
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import sys
 import threading
@@ -30,6 +31,17 @@ from prc_slam.pipeline import FrameError, NextFrame, Pipeline, PipelineFrame, Pi
 log = logging.getLogger("prc_slam")
 
 STAGES = ("organize", "prc", "online", "filter", "icp", "sinks")
+#: resident memory is recorded after every this many frames (metrics ``rss_mb``)
+RSS_EVERY = 50
+
+
+def rss_mb() -> float:
+    """This process's resident memory (MB; 0 where /proc is not)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return 0.0
 
 
 @dataclass
@@ -72,7 +84,7 @@ class LiveSweeps(Iterator[Any]):
 
     def __next__(self) -> Any:
         while True:
-            if self.stop.is_set():
+            if self.stop.is_set() and len(self.queue) == 0:  # the sweeps received are processed first
                 self.ended_by = self.ended_by or "stopped"
                 raise StopIteration
             if self.ended_by == "timeout" and len(self.queue) == 0:
@@ -83,6 +95,8 @@ class LiveSweeps(Iterator[Any]):
             if self.source.error is not None:  # raised by run_live once the outputs are closed
                 self.ended_by = "error"
                 raise StopIteration
+            if self.stop.is_set():
+                self.source.stop()  # receive no more
             sweep = self.queue.get(0.1)
             self.status.tick()
             if sweep is None:
@@ -130,6 +144,7 @@ class Status:
         self.stage_ms: dict[str, list[float]] = {k: [] for k in STAGES}
         self.lost_per_frame: list[int] = []
         self.frames = 0
+        self.rss_mb: dict[str, float] = {}  # resident memory (MB) after every RSS_EVERY-th frame
         now = time.perf_counter()
         self._next_tty, self._next_log = now + every, now + log_every
 
@@ -169,10 +184,11 @@ def rate_out(times: list[float]) -> float | None:
 
 
 class TimedSinks:
-    """The run's sinks as one, timed (the ``sinks`` stage), then the latency of the frame taken."""
+    """The run's file sinks as one, timed (the ``sinks`` stage), then the frame's latency; then the
+    viewer's sink, on its own thread (:class:`BackgroundSink`)."""
 
-    def __init__(self, sinks: list, status: Status, variant: str) -> None:
-        self.sinks, self.status, self.variant = sinks, status, variant
+    def __init__(self, sinks: list, status: Status, variant: str, viz: BackgroundSink | None = None) -> None:
+        self.sinks, self.status, self.variant, self.viz = sinks, status, variant, viz
 
     def frame(self, step: PipelineFrame) -> None:
         t0 = time.perf_counter()
@@ -185,6 +201,8 @@ class TimedSinks:
         if received is not None:
             st.latency.append(now - received)
         st.frames += 1
+        if st.frames % RSS_EVERY == 0:
+            st.rss_mb[str(st.frames)] = rss_mb()
         if not step.scan.meta.get("live_flushed"):
             st.out_times.append(now)
         st.lost_per_frame.append(int(step.scan.meta.get("live_lost_packets", 0)))
@@ -198,11 +216,53 @@ class TimedSinks:
             for k in ("filter", "icp"):
                 if k in ms:
                     st.stage_ms[k].append(ms[k])
+        if self.viz is not None:  # after the latency: the viewer shows the frame when its thread has logged it
+            self.viz.frame(step)
         st.tick()
 
     def close(self, result: PipelineResult) -> None:
         for sink in self.sinks:
             sink.close(result)
+        if self.viz is not None:
+            self.viz.close(result)
+
+
+class BackgroundSink:
+    """A sink run on its own thread (the Rerun logging): the live loop hands it each frame and
+    goes on; when it is still busy with ``maxsize`` frames, the frame is not logged (counted in
+    ``skipped``), so that watching never delays the poses and labels. :meth:`close` waits for it
+    to log what it holds, then closes the sink."""
+
+    def __init__(self, sink: Any, maxsize: int = 2) -> None:
+        import queue
+
+        self.sink = sink
+        self.skipped = 0
+        self._q: queue.Queue = queue.Queue(maxsize)
+        self._full = queue.Full
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._work, name="prc-slam-viewer", daemon=True)
+        self._thread.start()
+
+    def _work(self) -> None:
+        while (step := self._q.get()) is not None:
+            try:
+                self.sink.frame(step)
+            except Exception as exc:  # the run goes on; said once at the end
+                self.error = self.error or exc
+
+    def frame(self, step: PipelineFrame) -> None:
+        try:
+            self._q.put_nowait(step)
+        except self._full:
+            self.skipped += 1
+
+    def close(self, result: PipelineResult) -> None:
+        self._q.put(None)
+        self._thread.join(timeout=60)
+        if self.error is not None:
+            log.warning(f"Rerun logging failed: {type(self.error).__name__}: {self.error}")
+        self.sink.close(result)
 
 
 class PosesFile:
@@ -395,9 +455,10 @@ def run_live(
     sweeps = LiveSweeps(rx, queue, status, opts)
     sinks: list = []
     written: list[Path] = []
+    viz = None
     if viewer.sink is not None:
         viewer.sink.config.variants = [opts.variant]
-        sinks.append(ViewerSink(viewer.sink))
+        viz = BackgroundSink(ViewerSink(viewer.sink))
     poses = None if poses_out is None else PosesFile(poses_out, opts.variant)
     if poses is not None:
         sinks.append(poses)
@@ -409,7 +470,7 @@ def run_live(
 
         Path(labels_out).mkdir(parents=True, exist_ok=True)
         sinks.append(LabelFiles(labels_out))
-    timed = TimedSinks(sinks, status, opts.variant)
+    timed = TimedSinks(sinks, status, opts.variant, viz)
     pipe = LivePipeline(prc=config.prc if stage.needs_prc else None, online=detector, odometry=stage, sinks=[timed])
     result = None
     t0 = time.perf_counter()
@@ -438,6 +499,8 @@ def run_live(
     if rx.error is not None:
         raise rx.error
     metrics = live_metrics(rx, queue, status, sweeps, time.perf_counter() - t0)
+    if viz is not None:
+        metrics["viewer_frames_skipped"] = viz.skipped
     if result is not None and result.odometry is not None:
         try:
             metrics["variants"] = result.odometry.metrics().get("variants", {})
@@ -470,5 +533,6 @@ def live_metrics(rx: Any, queue: SweepQueue, status: Status, sweeps: LiveSweeps,
         "ended_by": sweeps.ended_by,
         "seconds": seconds,
         "latency_ms_first": [round(x * 1e3, 1) for x in status.latency[:5]],
+        "rss_mb": dict(status.rss_mb),
         "warnings": list(st.warnings),
     }
