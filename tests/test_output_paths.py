@@ -42,6 +42,10 @@ OUTPUTS = [
     (["simulate", "--frames", "2", "--out", "{tmp}/s"], "--kitti", "dir", "data_tools.sim.simulator.Simulator"),
     (["bench"], "--json", "file", "prc_slam.benchmark.run_bench"),
     (["demo", "--frames", "2"], "--out", "dir", "prc_slam.jobs.demo.simulated_drive"),
+    (["live", "velodyne://2368"], "--json", "file", "prc_slam.live.run.run_live"),
+    (["live", "velodyne://2368"], "--poses-out", "file", "prc_slam.live.run.run_live"),
+    (["live", "velodyne://2368"], "--labels-out", "dir", "prc_slam.live.run.run_live"),
+    (["live", "velodyne://2368"], "--rrd", "file", "prc_slam.live.run.run_live"),
     ([], "--log-file", "file", "prc_slam.jobs.classify.classify_job"),  # before the command: prc-slam OPT classify
 ]
 
