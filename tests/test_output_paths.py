@@ -116,3 +116,17 @@ def test_writable_paths_pass_and_nothing_is_left_behind(tmp_path):
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old.json"]
     assert (tmp_path / "old.json").read_text() == "kept"
+
+
+def test_filter_refuses_an_output_format_the_input_cannot_give_before_compiling(sim, tmp_path, monkeypatch):
+    """A bag/MCAP output needs a bag/MCAP input (its topic and frame id): a simulated folder with
+    ``--out x.mcap`` is refused before the kernels compile (it took ~30 s of compiling first)."""
+    import prc_slam.prc.algorithm as algorithm
+
+    def compiled(*_args, **_kwargs):
+        raise AssertionError("the kernels were compiled before the output format was checked")
+
+    monkeypatch.setattr(algorithm, "warm_up", compiled)
+    res = runner.invoke(app, ["filter", str(sim), "--out", str(tmp_path / "x.mcap")])
+    assert res.exit_code == 2, res.output
+    assert "needs a ROS 1/2 or MCAP input" in res.output and "Traceback" not in res.output

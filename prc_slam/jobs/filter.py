@@ -64,8 +64,10 @@ def run_filter(
         total: int | None = len(dataset) if frames is None else frames  # type: ignore[arg-type]
     except TypeError:
         total = None
-    warm_up()
+    # the writer first: a format the input cannot give (bag output of a KITTI folder) is refused
+    # before the kernels compile
     writer = writer_factory(Path(out), dataset, out_format, label_dtype=label_dtype, overwrite=overwrite)
+    warm_up()
     sink = FilterSink(writer, config.filter, codes)
     on_frame = None if progress is None else (lambda step: progress(step.index + 1, total))
     scans = frames_of(dataset, frames) if frames is not None else dataset
