@@ -17,18 +17,30 @@ where it is safe: on POSIX, from the main thread of a process that is not itself
 worker (Dask's), and before numba's OpenMP threads have started in the caller (GNU OpenMP does
 not survive a fork). :func:`can_fork` says whether it is; elsewhere the next frame is made on a
 thread, as before.
+
+The child never outlives the caller: it is killed when the caller ends, however it ends
+(``prctl(PR_SET_PDEATHSIG)`` on Linux, a watch of its parent elsewhere), and it ends at the end
+of file when the caller closes the pipe.
 """
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import multiprocessing as mp
 import os
 import pickle
 import signal
+import sys
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
+
+#: prctl(2) option: the signal the kernel sends this process when its parent ends (Linux)
+PR_SET_PDEATHSIG = 1
+#: seconds between the child's checks that its parent is still there (where prctl is missing)
+PARENT_POLL_S = 1.0
 
 #: the child's scheduling niceness: the registration beside it is the critical path, and on two
 #: cores KISS-ICP's threads use both; at the caller's priority the child's reading and PRC slowed
@@ -82,8 +94,52 @@ def _portable(exc: BaseException) -> BaseException:
         return RuntimeError(f"{type(exc).__name__}: {exc}")
 
 
-def _serve(conn: Any, make: Callable[[], Any], state: Callable[[], Any], warnings_to: list[str]) -> None:
-    """The child: make a frame for every request, send it with its intervals, logs and state."""
+def die_with_parent(parent: int) -> bool:
+    """In a forked child: be killed (SIGKILL) when the parent ``parent`` ends, whatever ends it
+    (SIGTERM, SIGKILL, a crash). On Linux through ``prctl(PR_SET_PDEATHSIG)``, then a check that
+    the parent did not already end before it took effect; returns whether prctl took it (else the
+    caller watches :func:`os.getppid`). Ends the child at once when the parent has gone."""
+    armed = False
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            armed = libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0
+        except (OSError, AttributeError):  # no libc prctl: the caller polls
+            armed = False
+    if os.getppid() != parent:  # the parent ended before the death signal was armed
+        os._exit(1)
+    return armed
+
+
+def _watch_parent(parent: int) -> None:
+    """A daemon thread in the child: end the child when its parent has gone (no prctl)."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="prc-slam-parent-watch", daemon=True).start()
+
+
+def _serve(
+    conn: Any,
+    make: Callable[[], Any],
+    state: Callable[[], Any],
+    warnings_to: list[str],
+    parent: int = 0,
+    parent_end: Any = None,
+) -> None:
+    """The child: make a frame for every request, send it with its intervals, logs and state.
+    It ends with its parent (:func:`die_with_parent`), and when the parent closes the pipe: the
+    child closes its copy of the parent's end, so the parent's exit is an end of file here."""
+    if parent and not die_with_parent(parent):
+        _watch_parent(parent)
+    if parent_end is not None:
+        parent_end.close()
+    from prc_slam.signals import reset_in_child
+
+    reset_in_child()  # SIGTERM ends the child; the parent's signal watchdog is not told
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's to handle
     os.nice(CHILD_NICE)
     collect = _Collect()
@@ -145,7 +201,10 @@ class ForkedNextFrame:
         ctx = mp.get_context("fork")
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(
-            target=_serve, args=(child, make, state, warnings_to), name="prc-slam-frames", daemon=True
+            target=_serve,
+            args=(child, make, state, warnings_to, os.getpid(), self._conn),
+            name="prc-slam-frames",
+            daemon=True,
         )
         self._proc.start()
         child.close()

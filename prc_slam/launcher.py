@@ -1,8 +1,9 @@
 """The ``prc-slam`` console entry point.
 
-It imports nothing heavy before taking over Ctrl-C, so that an interrupt at any moment (also
-while numpy, numba or Open3D are still loading, where it surfaces as an ``ImportError``) ends
-with one line ``error: interrupted`` and exit code 130, and no tear-down noise from half-loaded
+It imports nothing heavy before taking over Ctrl-C and SIGTERM (:mod:`prc_slam.signals`), so
+that an interrupt at any moment (also while numpy, numba or Open3D are still loading, where it
+surfaces as an ``ImportError``) ends with one line ``error: interrupted ...`` and exit code 130
+(143 for SIGTERM), the process's children ended, and no tear-down noise from half-loaded
 extensions.
 """
 
@@ -11,40 +12,30 @@ from __future__ import annotations
 import os
 import signal
 import sys
-import threading
+
+from prc_slam import signals
+from prc_slam.signals import REDELIVER_S, _in_native_callback  # noqa: F401  (kept importable from here)
 
 _interrupted = False
-#: seconds after which a Ctrl-C that arrived inside a native callback is delivered again
-REDELIVER_S = 0.05
-
-
-def _in_native_callback(frame) -> bool:
-    """Whether the signal arrived in Python code that native code called back: llvmlite's ctypes
-    callbacks while numba compiles, where a raised exception is printed as "Exception ignored ...
-    Traceback" and dropped."""
-    return frame is not None and "llvmlite" in frame.f_code.co_filename
 
 
 def _on_sigint(signum, frame):
+    """SIGINT and SIGTERM: :func:`prc_slam.signals.on_signal`, remembered for the exit."""
     global _interrupted
     _interrupted = True
-    if _in_native_callback(frame):  # delivered again once the callback has returned
-        timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signal.SIGINT))
-        timer.daemon = True
-        timer.start()
-        return
-    raise KeyboardInterrupt
+    signals.on_signal(signum, frame)
 
 
 def _exit_interrupted() -> None:
     sys.stderr.write("error: interrupted\n")
     sys.stderr.flush()
     sys.stdout.flush()
-    os._exit(130)
+    signals.end_children()
+    os._exit(signals.exit_code())
 
 
 def main() -> None:
-    signal.signal(signal.SIGINT, _on_sigint)
+    signals.install(_on_sigint)
     try:
         from prc_slam.cli import app
 
@@ -54,10 +45,12 @@ def main() -> None:
         if code == 130:  # the command said "error: interrupted" already
             sys.stdout.flush()
             sys.stderr.flush()
-            os._exit(130)
+            signals.end_children()
+            os._exit(signals.exit_code())
         if _interrupted:  # Ctrl-C while the command was finishing
             _exit_interrupted()
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # done: a Ctrl-C during tear-down changes nothing
+        for sig in signals.HANDLED:  # done: a Ctrl-C or SIGTERM during tear-down changes nothing
+            signal.signal(sig, signal.SIG_IGN)
         raise
     except BaseException:
         if _interrupted:

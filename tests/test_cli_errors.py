@@ -191,7 +191,8 @@ def test_ctrl_c_at_any_moment_is_one_line_and_130(tmp_path, sim):
             continue
         assert proc.returncode == 130, err
         assert "Traceback" not in err and "leaked" not in err, err
-        assert [line for line in err.splitlines() if line.startswith("error:")] == ["error: interrupted"], err
+        errors = [line for line in err.splitlines() if line.startswith("error:")]
+        assert len(errors) == 1 and errors[0].startswith("error: interrupted"), err  # mid-run: what was written
 
 
 def test_ctrl_c_inside_a_native_callback_is_delivered_again(monkeypatch):

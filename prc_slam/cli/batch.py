@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from prc_slam.cli.common import check_outputs, console, handles_errors, say, wrote
+from prc_slam.cli.common import BIND_OPT, check_outputs, console, handles_errors, say, wrote
 
 
 def register(app: typer.Typer) -> None:
@@ -25,6 +25,7 @@ def batch(
     ),
     retries: int = typer.Option(2, "--retries", min=0, help="retries of a task that raised an unexpected error"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace the results of an earlier batch in OUT"),
+    bind: str = BIND_OPT,
 ) -> None:
     """Run a plan's job on every input, one Dask task per input (a local cluster of worker
     processes by default; --scheduler for a real cluster); writes OUT/<input-name>/ as the
@@ -38,7 +39,7 @@ def batch(
     tasks = resolve_tasks(spec, plan.resolve().parent)
     say(f"{len(tasks)} inputs: " + ", ".join(f"{t.name} ({t.kind})" for t in tasks))
     prepare_out(out, tasks, overwrite)  # refuse (or clear) earlier results before starting a cluster
-    with open_client(scheduler, workers, note=say) as client, progress() as reporter:
+    with open_client(scheduler, workers, note=say, bind=bind) as client, progress() as reporter:
         summary = run_batch(tasks, out, client, reporter=reporter, note=say, retries=retries, overwrite=overwrite)
     ok = summary["inputs"] - summary["failed"]
     console.print(

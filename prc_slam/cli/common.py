@@ -404,6 +404,11 @@ SERVE_SECONDS_OPT = typer.Option(
 )
 WEB_PORT_OPT = typer.Option(None, "--web-port", min=1, max=65535, help="with --serve-web: HTTP port (default 9090)")
 GRPC_PORT_OPT = typer.Option(None, "--grpc-port", min=1, max=65535, help="with --serve-web: stream port (default 9876)")
+BIND_OPT = typer.Option(
+    "127.0.0.1",
+    "--bind",
+    help="address what is served listens on (default the loopback: this machine only; 0.0.0.0: every interface)",
+)
 TOPIC_OPT = typer.Option(None, "--topic", help="bags/MCAP: the PointCloud2 topic (when there are several)")
 META_OPT = typer.Option(None, "--meta", help="Ouster pcap: the sensor's metadata json (default: beside the pcap)")
 MODEL_OPT = typer.Option(None, "--model", help="Velodyne pcap: the sensor model (default: from the packets)")

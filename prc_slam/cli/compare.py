@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from prc_slam.cli.common import (
+    BIND_OPT,
     COLS_OPT,
     CONNECT_OPT,
     EVERY_OPT,
@@ -32,6 +33,7 @@ from prc_slam.cli.common import (
     check_outputs,
     class_table,
     console,
+    fail,
     handles_errors,
     input_options,
     log,
@@ -125,6 +127,7 @@ def compare(
     serve_seconds: float | None = SERVE_SECONDS_OPT,
     web_port: int | None = WEB_PORT_OPT,
     grpc_port: int | None = GRPC_PORT_OPT,
+    bind: str = BIND_OPT,
     mapclass: bool = typer.Option(False, "--mapclass", help="also classify the run's map (paper 004) vs PRC"),
     mapclass_every: int = typer.Option(5, min=1, help="with --mapclass: accumulate every n-th frame"),
 ) -> None:
@@ -134,7 +137,7 @@ def compare(
     accumulate the map at the PRC variant's poses, classify it after registration and report the
     agreement of PRC labels with it (mapclass.json, report.md)."""
     from prc_slam.jobs.common import Viewer, write_json
-    from prc_slam.jobs.odometry import run_odometry, write_outputs
+    from prc_slam.jobs.odometry import Interrupted, interrupted_line, run_odometry, write_outputs
     from prc_slam.jobs.progress import progress
 
     check_outputs(out=(out, "dir"), json_path=(json_path, "file"), rrd=(rrd, "file"))
@@ -207,10 +210,11 @@ def odometry(
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
     log_every: int = EVERY_OPT,
+    bind: str = BIND_OPT,
 ) -> None:
     """KISS-ICP odometry on every frame, on all points or on the PRC-filtered ones."""
     from prc_slam.jobs.common import Viewer, write_json
-    from prc_slam.jobs.odometry import run_odometry, trajectory_file
+    from prc_slam.jobs.odometry import Interrupted, interrupted_line, run_odometry, trajectory_file
     from prc_slam.jobs.progress import progress
 
     if matching is Matching.class_aware and filter is FilterMode.none:
@@ -219,12 +223,21 @@ def odometry(
     check_outputs(poses_out=(poses_out, "file"), json_path=(json_path, "file"), rrd=(rrd, "file"))
     cfg = run_config(preset, config, mode)
     cfg.odometry.deskew = cfg.odometry.deskew and deskew
-    with progress() as reporter:
-        run, _ = run_odometry(
-            input, cfg, [name], fmt=fmt, max_frames=max_frames, stride=stride,
-            viewer=Viewer(rrd, connect, serve_web, log_every),
-            reporter=reporter, **input_options(topic, meta, model, rows, cols, organize=organize),
-        )  # fmt: skip
+    try:
+        with progress() as reporter:
+            run, _ = run_odometry(
+                input, cfg, [name], fmt=fmt, max_frames=max_frames, stride=stride,
+                viewer=Viewer(rrd, connect, serve_web, log_every, bind=bind),
+                reporter=reporter, **input_options(topic, meta, model, rows, cols, organize=organize),
+            )  # fmt: skip
+    except Interrupted as stop:  # the frames done are written, marked interrupted
+
+        def write(part) -> list[str]:
+            files = [] if poses_out is None else [trajectory_file(part, name, poses_out, pose_format.value)]
+            files += [] if json_path is None else write_json(json_path, part.metrics, cfg)
+            return [str(p) for p in files]
+
+        raise fail(interrupted_line(stop, write), 130) from None
     written = list(run.written)
     warn_failed(run.metrics)
     if poses_out is not None:
@@ -248,18 +261,36 @@ def view(
     fmt: str | None = FORMAT_OPT,
     online: bool = typer.Option(True, "--online/--no-online", help="also run and show the online detectors"),
     log_every: int = typer.Option(1, "--log-every", min=1, help="log clouds and images on every n-th frame"),
+    serve_web: bool = typer.Option(
+        False, "--serve-web", help="serve the web viewer instead of spawning the desktop viewer (no display needed)"
+    ),
+    rrd: Path | None = typer.Option(None, "--rrd", help="write the recording here instead of spawning the viewer"),
+    serve_seconds: float | None = SERVE_SECONDS_OPT,
+    web_port: int | None = WEB_PORT_OPT,
+    grpc_port: int | None = GRPC_PORT_OPT,
+    bind: str = BIND_OPT,
 ) -> None:
-    """Spawn the Rerun desktop viewer and watch PRC, the detectors and raw vs PRC-filtered odometry live."""
+    """Spawn the Rerun desktop viewer and watch PRC, the detectors and raw vs PRC-filtered odometry live
+    (``--serve-web``: in a browser; ``--rrd FILE``: into a file to open later)."""
     from prc_slam.config import Config
     from prc_slam.jobs.common import Viewer
-    from prc_slam.jobs.odometry import run_odometry
+    from prc_slam.jobs.odometry import Interrupted, interrupted_line, run_odometry
     from prc_slam.jobs.progress import progress
     from prc_slam.prc.config import PRCConfig
 
+    check_outputs(rrd=(rrd, "file"))
+    spawn = not serve_web and rrd is None
+    viewer = Viewer(
+        rrd, None, serve_web, log_every, spawn=spawn, serve_seconds=serve_seconds, web_port=web_port,
+        grpc_port=grpc_port, bind=bind,
+    )  # fmt: skip
     cfg = Config(prc=PRCConfig.preset("multibeam"))
-    with progress() as reporter:
-        run_odometry(
-            input, cfg, ["raw", "prc"], fmt=fmt, max_frames=max_frames, online=online,
-            viewer=Viewer(spawn=True, every=log_every), reporter=reporter,
-            **input_options(topic, meta, model, rows, cols, organize=organize),
-        )  # fmt: skip
+    try:
+        with progress() as reporter:
+            run, _ = run_odometry(
+                input, cfg, ["raw", "prc"], fmt=fmt, max_frames=max_frames, online=online, viewer=viewer,
+                reporter=reporter, **input_options(topic, meta, model, rows, cols, organize=organize),
+            )  # fmt: skip
+    except Interrupted as stop:
+        raise fail(interrupted_line(stop, lambda part: []), 130) from None
+    wrote(run.written)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -104,13 +105,35 @@ def write_json(path: Path, data: dict[str, Any], config: Config | None = None) -
     return written
 
 
+#: seconds the recording may take to reach its file or viewer at the end of a run; beyond, the
+#: rest is dropped with a warning instead of blocking (a viewer that stopped taking data)
+FLUSH_TIMEOUT_S = 20.0
+
+
+def exposed_warning(bind: str, ports: list[int]) -> str | None:
+    """The warning for serving on an address other than the loopback (``--bind``), else None."""
+    from prc_slam.viz.sink import is_loopback
+
+    if is_loopback(bind):
+        return None
+    where = "this machine" if bind in ("0.0.0.0", "::") else bind
+    listed = "/".join(str(p) for p in ports)
+    return (
+        f"serving on {bind}: anyone who can reach {where} on port{'s' if len(ports) > 1 else ''} {listed} "
+        "can watch and send data"
+    )
+
+
 class Viewer:
     """Where a run's Rerun recording goes: an ``.rrd`` file, a running viewer, the web viewer or a
     spawned desktop viewer; a no-op when none is asked for.
 
     The file is written as ``NAME.partial.rrd`` and renamed to ``NAME.rrd`` only when the run
     completes; an interrupted run leaves ``NAME.partial.rrd`` ending with a text log
-    ``interrupted at frame k``.
+    ``interrupted at frame k``. What is served listens on ``bind`` (the loopback by default; any
+    other address is said in a warning). A spawned viewer is watched: when it ends during the run,
+    the next frame's logging raises :class:`~prc_slam.viz.sink.ViewerError` instead of waiting for
+    it forever.
     """
 
     def __init__(
@@ -124,28 +147,53 @@ class Viewer:
         map_voxel: float = 0.5,
         web_port: int | None = None,
         grpc_port: int | None = None,
+        bind: str = "127.0.0.1",
     ) -> None:
         self.sink = None
         self.rrd = rrd
         self.address: str | None = None
         self.serve_web, self.serve_seconds = serve_web, serve_seconds
+        self._spawned = None  # a desktop viewer started for this run (it stays open after it)
+        self._servers: list = []  # the web viewer's server (ended with the run)
         if rrd is None and connect is None and not serve_web and not spawn:
             return
-        from prc_slam.viz.sink import RerunSink, VizConfig, open_recording
+        from prc_slam.viz.sink import RerunSink, ViewerError, VizConfig, has_display, start_recording
 
+        if spawn and not has_display():
+            raise ViewerError(
+                "view: no display to open the viewer on; use --serve-web (browser) or --rrd FILE "
+                f"(open later with {Path(sys.executable).parent / 'rerun'} FILE)"
+            )
+        if serve_web and (note := exposed_warning(bind, [web_port or 9090, grpc_port or 9876])):
+            log.warning(note)
         if rrd is not None:
             rrd.parent.mkdir(parents=True, exist_ok=True)
-        rec, self.address = open_recording(
+        rec, self.address, procs = start_recording(
             rrd=None if rrd is None else str(self.partial_path),
             connect=connect,
             serve_web=serve_web,
             spawn=spawn,
             web_port=web_port,
             grpc_port=grpc_port,
+            bind=bind,
         )
+        if spawn:
+            self._spawned = procs[0] if procs else None
+        else:
+            self._servers = procs
         self.sink = RerunSink(rec, VizConfig(every=every, map_every=every, map_voxel=map_voxel))
+        self.sink.check = self.check
         if self.address:
             log.info(f"web viewer: {self.address}")
+
+    def check(self) -> None:
+        """Raise :class:`~prc_slam.viz.sink.ViewerError` when the spawned viewer has ended."""
+        if self._spawned is not None and (code := self._spawned.poll()) is not None:
+            from prc_slam.viz.sink import ViewerError
+
+            self._spawned = None
+            self.sink = None
+            raise ViewerError(f"view: the Rerun viewer ended during the run (exit code {code}); the run stopped")
 
     @property
     def partial_path(self) -> Path:
@@ -154,13 +202,16 @@ class Viewer:
         return self.rrd.with_name(stem + ".partial.rrd")
 
     def close(self, interrupted_at: int | None = None) -> Path | None:
-        """Flush the recording; rename the file when complete. Returns the file written."""
+        """Flush the recording (at most :data:`FLUSH_TIMEOUT_S`); rename the file when complete;
+        serve the web viewer on for ``serve_seconds``, then end its server. Returns the file
+        written."""
         if self.sink is None:
+            self._end_servers()
             return None
         if interrupted_at is not None:
             self.sink.warn(f"interrupted at frame {interrupted_at}: this recording is partial")
         try:
-            self.sink.rec.flush()
+            self.sink.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         except RuntimeError as exc:  # e.g. the viewer at --connect never answered: the rest stands
             log.warning(f"Rerun: the recording could not be delivered: {str(exc).splitlines()[0]}")
         written = None
@@ -180,4 +231,19 @@ class Viewer:
                     time.sleep(0.2)
             except KeyboardInterrupt:
                 pass
+        self._end_servers()
         return written
+
+    def _end_servers(self) -> None:
+        """End the web viewer's server (a spawned desktop viewer stays open)."""
+        import subprocess
+
+        for proc in self._servers:
+            if proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(2.0)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+        self._servers = []

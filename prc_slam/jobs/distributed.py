@@ -32,6 +32,23 @@ import numpy as np
 
 log = logging.getLogger("prc_slam")
 
+#: where a local cluster listens unless ``--bind`` says otherwise
+LOOPBACK = "127.0.0.1"
+#: the dashboard's port (Dask's default)
+DASHBOARD_PORT = 8787
+
+
+def _is_loopback(address: str) -> bool:
+    """Whether ``address`` is this machine's loopback only."""
+    import ipaddress
+
+    if address == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(address).is_loopback
+    except ValueError:
+        return False
+
 
 def default_workers() -> int:
     """Worker processes for a local cluster: the CPUs this process may use."""
@@ -52,10 +69,14 @@ def open_client(
     workers: int | None = None,
     note: Callable[[str], None] | None = None,
     dashboard: bool | None = None,
+    bind: str = LOOPBACK,
+    dashboard_port: int = DASHBOARD_PORT,
 ) -> Iterator[Any]:
     """A ``distributed.Client``: on ``scheduler`` (or ``DASK_SCHEDULER_ADDRESS``), else on a
     fresh in-process ``LocalCluster`` of ``workers`` single-threaded worker processes.
 
+    A local cluster's scheduler, workers and dashboard listen on ``bind`` (default the loopback:
+    only this machine can connect; ``--bind 0.0.0.0`` exposes them, said in a warning).
     ``note`` receives one line naming the cluster and one with the dashboard address.
     """
     from distributed import Client, LocalCluster
@@ -76,11 +97,16 @@ def open_client(
         say(f"dask: scheduler {address}, {len(client.scheduler_info(n_workers=-1)['workers'])} workers")
     else:
         n = workers or default_workers()
+        if not _is_loopback(bind):
+            ports = f"port {dashboard_port} (dashboard) and the scheduler's" if dashboard else "the scheduler's port"
+            log.warning(f"serving on {bind}: anyone who can reach this machine on {ports} can watch and send work")
+        host = f"[{bind}]" if ":" in bind else bind
         cluster = LocalCluster(
             n_workers=n,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=":8787" if dashboard else None,
+            host=bind,
+            dashboard_address=f"{host}:{dashboard_port}" if dashboard else None,
             silence_logs=logging.ERROR,
             # numba's parallel kernels (the online detectors) and KISS-ICP's threads take every
             # core by default: share them out, or the workers' threads fight over the cores

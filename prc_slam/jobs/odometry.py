@@ -4,7 +4,7 @@ PRC, the filter policy and, on request, the online detectors) over one input."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,6 +16,7 @@ from prc_slam.jobs.common import Viewer, frames_of, open_input, write_json
 from prc_slam.jobs.progress import Reporter
 from prc_slam.jobs.sinks import ViewerSink
 from prc_slam.pipeline import Pipeline, PipelineFrame, PipelineResult
+from prc_slam.signals import frame_boundaries
 
 log = logging.getLogger("prc_slam")
 
@@ -30,6 +31,31 @@ class OdometryRun:
     online: dict[str, Any] | None = None
     prc: dict[str, Any] | None = None
     written: list[Path] = field(default_factory=list)
+
+
+class Interrupted(KeyboardInterrupt):
+    """A run stopped by Ctrl-C (or SIGTERM) after ``done`` of ``total`` frames. ``run`` holds what
+    those frames produced (metrics marked ``interrupted``), or None when the frame in progress
+    could not be finished (a first interrupt waits for it up to a few seconds:
+    :func:`prc_slam.signals.frame_boundaries`); ``recording`` is the partial ``.rrd`` written, if
+    any."""
+
+    def __init__(self, done: int, total: int, run: OdometryRun | None, recording: Path | None) -> None:
+        super().__init__(f"interrupted at frame {done} of {total}")
+        self.done, self.total, self.run, self.recording = done, total, run, recording
+
+
+class _KeepResult:
+    """Keeps the pipeline's result, handed to the sinks also when the run is interrupted."""
+
+    def __init__(self) -> None:
+        self.result: PipelineResult | None = None
+
+    def frame(self, step: PipelineFrame) -> None:
+        pass
+
+    def close(self, result: PipelineResult) -> None:
+        self.result = result
 
 
 class _KeepPRCLabels:
@@ -91,20 +117,71 @@ def run_odometry(
         sinks.append(ViewerSink(viewer.sink))
     task = None if reporter is None else reporter.task("odometry " + " | ".join(variants), n)
     done = [0]
+    kept = _KeepResult()
+    sinks.append(kept)
+    boundary = [lambda: None]
 
     def on_frame(step: PipelineFrame) -> None:
         done[0] = step.index + 1
         if task is not None:
             task.advance()
+        boundary[0]()  # a Ctrl-C held until this frame was done is raised here
 
     pipe = Pipeline(
         prc=config.prc if stage.needs_prc else None, online=detector, odometry=stage, sinks=sinks, on_frame=on_frame
     )
     try:
-        presult = pipe.run(frames_of(dataset, n))
+        with frame_boundaries() as check:
+            boundary[0] = check
+            presult = pipe.run(frames_of(dataset, n))
     except KeyboardInterrupt:
-        viewer.close(interrupted_at=done[0])
-        raise
+        recording = viewer.close(interrupted_at=done[0])
+        partial = None if kept.result is None else _partial_run(kept.result, n, config, online_scorer, prc_scorer)
+        at = done[0] if partial is None else partial.metrics["interrupted_at_frame"]
+        raise Interrupted(at, n, partial, recording) from None
+    run = _finished_run(presult, config, online_scorer, prc_scorer)
+    written = viewer.close()
+    if written is not None:
+        run.written.append(written)
+    return run, ({} if keeper is None else keeper.labels)
+
+
+def _partial_run(presult: PipelineResult, total: int, config: Config, *scorers) -> OdometryRun | None:
+    """What the frames done before an interrupt produced, marked interrupted (``interrupted``,
+    ``interrupted_at_frame``: the frames done, ``frames_in_input``); None when the interrupt landed
+    inside a frame's registration (a variant holds a pose the frame list does not)."""
+    result = presult.odometry
+    if result is None:
+        return None
+    done = len(result.times)
+    if any(r.frames > done for r in result.runs.values()):
+        return None
+    run = _finished_run(presult, config, *scorers)
+    run.metrics.update(interrupted=True, interrupted_at_frame=done, frames_in_input=total)
+    return run
+
+
+def interrupted_line(stop: Interrupted, write: Callable[[OdometryRun], list[str]]) -> str:
+    """Write the results of an interrupted run with ``write`` (returns what it wrote, named for
+    the user) and the one line that says where the run stopped and what it left. A second
+    interrupt while writing stops the writing (said)."""
+    parts = []
+    if stop.run is None:
+        parts.append("the frame in progress could not be finished, no results written")
+    else:
+        try:
+            names = write(stop.run)
+            if names:
+                parts.append("wrote " + ", ".join(names))
+        except KeyboardInterrupt:
+            parts.append("interrupted again while writing the results: they may be incomplete")
+    if stop.recording is not None:
+        parts.append(f"partial recording {stop.recording}")
+    return f"interrupted at frame {stop.done} of {stop.total}" + (": " + "; ".join(parts) if parts else "")
+
+
+def _finished_run(presult: PipelineResult, config: Config, online_scorer, prc_scorer) -> OdometryRun:
+    """The run's metrics (variants, pipeline counts, health note, scores) from its result."""
     result = presult.odometry
     metrics = result.metrics()
     metrics.update(presult.summary())
@@ -119,10 +196,7 @@ def run_odometry(
     if prc_scorer is not None:
         run.prc = prc_scorer.metrics(presult)
         metrics["prc"] = run.prc
-    written = viewer.close()
-    if written is not None:
-        run.written.append(written)
-    return run, ({} if keeper is None else keeper.labels)
+    return run
 
 
 def unchecked_health_note(frames: int | None, warm_up: int) -> str | None:
@@ -145,6 +219,10 @@ def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> li
     from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
     from prc_slam.report import classification_section, write_compare_outputs
 
+    if run.metrics.get("interrupted"):  # the report's first line says so
+        k, n = run.metrics["interrupted_at_frame"], run.metrics["frames_in_input"]
+        covers = f"frames 0 to {k - 1}" if k else "no frame"
+        title = f"Interrupted at frame {k} of {n}: {title[:1].lower()}{title[1:]} (every output covers {covers})"
     metrics, written = write_compare_outputs(run.result, config, out, title, write_kitti_poses, write_tum_poses)
     extra = {k: v for k, v in run.metrics.items() if k != "variants"}
     if extra:

@@ -34,7 +34,12 @@ and a default blueprint (3-D view, range images, time series, text log).
 
 from __future__ import annotations
 
+import os
+import sys
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import rerun as rr
@@ -146,6 +151,9 @@ class RerunSink:
         self._pose: np.ndarray | None = None
         #: subtracted from every classified-map point before logging (:func:`display_origin`)
         self.map_origin: np.ndarray | None = None
+        #: called before each frame is logged; raises when the viewer logged to has gone
+        #: (:class:`ViewerError`), so that the stream never waits for it forever
+        self.check: Callable[[], None] | None = None
         self.rec.log("/", annotation_context(), static=True)
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
@@ -158,6 +166,8 @@ class RerunSink:
         self.rec.log("logs", rr.TextLog(message, level=rr.TextLogLevel.WARN))
 
     def _time(self, index: int, t: float) -> None:
+        if self.check is not None:
+            self.check()
         self.rec.set_time("frame", sequence=index)
         self.rec.set_time("sensor_time", duration=float(t))
 
@@ -319,7 +329,148 @@ class RerunSink:
                 self.rec.log(f"metrics/points/{name}/kept", rr.Scalars(float(n_kept[c])))
 
 
-def open_recording(
+#: where everything served listens unless ``--bind`` says otherwise
+LOOPBACK = "127.0.0.1"
+#: seconds a started viewer or web viewer has to listen on its port
+START_TIMEOUT_S = 20.0
+#: seconds a spawned viewer must stay up after it listens (it opens its window then, and ends
+#: at once when there is no display to open it on)
+SETTLE_S = 1.5
+
+
+class ViewerError(OSError):
+    """The Rerun viewer could not be started, or ended while the run logged to it."""
+
+
+def has_display() -> bool:
+    """Whether a desktop window can be opened: always on macOS and Windows; elsewhere when
+    ``DISPLAY`` or ``WAYLAND_DISPLAY`` is set."""
+    if sys.platform == "darwin" or os.name == "nt":
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def is_loopback(address: str) -> bool:
+    """Whether ``address`` (an IP or host name) is this machine's loopback only."""
+    import ipaddress
+
+    if address == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(address).is_loopback
+    except ValueError:
+        return False
+
+
+def rerun_executable(python: str | None = None, path: str | None = None) -> str | None:
+    """The Rerun viewer executable, found without the virtual environment being activated.
+
+    In order: the binary shipped in rerun-sdk's ``rerun_cli`` package (the real program, not the
+    Python wrapper that would start it as a second process), ``rerun`` beside the interpreter
+    ``python`` (default ``sys.executable``: ``.venv/bin/rerun``, not on ``PATH`` when the
+    environment is not activated), the interpreter's scripts directory, then ``path`` (default
+    ``PATH``). None when there is none.
+    """
+    import importlib.util
+    import shutil
+    import sysconfig
+
+    name = "rerun.exe" if os.name == "nt" else "rerun"
+    candidates: list[Path] = []
+    if python is None:  # this interpreter: rerun-sdk's own binary first
+        python = sys.executable
+        spec = importlib.util.find_spec("rerun_cli")
+        if spec is not None and spec.origin:
+            candidates.append(Path(spec.origin).parent / name)
+    candidates.append(Path(python).parent / name)  # not resolved: the venv's bin, not the base interpreter's
+    candidates.append(Path(sysconfig.get_path("scripts")) / name)
+    for candidate in candidates:
+        if candidate.is_file() and os.access(candidate, os.X_OK):
+            return str(candidate)
+    return shutil.which(name, path=path)
+
+
+def _listening(port: int, host: str = LOOPBACK) -> bool:
+    """Whether something accepts TCP connections on ``host:port``."""
+    import socket
+
+    connect_to = LOOPBACK if host in ("0.0.0.0", "") else "::1" if host == "::" else host
+    try:
+        with socket.create_connection((connect_to, port), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
+def _last_line(log_file) -> str:
+    """The last non-empty line a started viewer wrote (its error), without terminal colours."""
+    import re
+
+    log_file.seek(0)
+    text = log_file.read().decode(errors="replace")
+    lines = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in text.splitlines()]
+    lines = [line for line in lines if line]
+    return lines[-1] if lines else "no message"
+
+
+def _linux_die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec
+    import ctypes
+    import signal
+
+    ctypes.CDLL(None).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+
+
+def start_viewer(args: list[str], port: int, what: str, detach: bool, host: str = LOOPBACK):
+    """Start the Rerun executable with ``args`` and wait until it listens on ``port``; raises
+    :class:`ViewerError` naming ``what`` (and the viewer's own last line) when it is missing or
+    ends first. ``detach``: the viewer gets a session of its own and outlives this process (a
+    desktop viewer); else it ends with this process (a web viewer server)."""
+    import subprocess
+    import tempfile
+
+    exe = rerun_executable()
+    if exe is None:
+        raise ViewerError(
+            f"{what}: the Rerun viewer executable 'rerun' was not found beside {sys.executable} nor on PATH "
+            "(reinstall rerun-sdk); use --rrd FILE and open it later"
+        )
+    log_file = tempfile.TemporaryFile()
+    options: dict = {"start_new_session": True} if detach else {}
+    if not detach and sys.platform.startswith("linux"):
+        options["preexec_fn"] = _linux_die_with_parent
+    proc = subprocess.Popen(
+        [exe, *args],
+        stdin=subprocess.DEVNULL,
+        stdout=log_file,
+        stderr=subprocess.STDOUT,
+        env={**os.environ, "RERUN_APP_ONLY": "true"},
+        **options,
+    )
+    deadline = time.monotonic() + START_TIMEOUT_S
+    settled_at = None
+    while True:
+        code = proc.poll()
+        if code is not None:
+            raise ViewerError(f"{what}: the Rerun viewer ended at start (exit code {code}): {_last_line(log_file)}")
+        now = time.monotonic()
+        if settled_at is None and _listening(port, host):
+            settled_at = now + (SETTLE_S if detach else 0.0)
+        if settled_at is not None and now >= settled_at:
+            return proc
+        if now > deadline:
+            proc.terminate()
+            raise ViewerError(f"{what}: the Rerun viewer did not listen on port {port} within {START_TIMEOUT_S:g} s")
+        time.sleep(0.1)
+
+
+def open_recording(application: str = "prc_slam", **where) -> tuple[rr.RecordingStream, str | None]:
+    """:func:`start_recording` without the processes it started (a web viewer's server ends with
+    this process)."""
+    rec, address, _ = start_recording(application, **where)
+    return rec, address
+
+
+def start_recording(
     application: str = "prc_slam",
     *,
     rrd: str | None = None,
@@ -328,29 +479,45 @@ def open_recording(
     spawn: bool = False,
     web_port: int | None = None,
     grpc_port: int | None = None,
-) -> tuple[rr.RecordingStream, str | None]:
+    bind: str = LOOPBACK,
+) -> tuple[rr.RecordingStream, str | None, list]:
     """A recording stream writing to any combination of a file, a running viewer and a served
-    web viewer, or to a spawned desktop viewer. Returns the stream and, for ``serve_web``, the
-    viewer's address."""
+    web viewer, or to a spawned desktop viewer. Returns the stream, for ``serve_web`` the
+    viewer's address, and the viewer processes started (``subprocess.Popen``: a spawned desktop
+    viewer, which outlives this process, or the web viewer's server, which does not).
+
+    Everything served listens on ``bind`` (default the loopback: only this machine can connect).
+    A spawned viewer is the ``rerun`` executable found by :func:`rerun_executable`; it is waited
+    for, and one that ends at start (no display, a port in use) raises :class:`ViewerError` with
+    its own message instead of leaving the stream to block on a viewer that is not there."""
     rec = rr.RecordingStream(application)
     address = None
     if spawn:
-        rec.spawn(default_blueprint=default_blueprint())
-        return rec, None
+        port = grpc_port or 9876
+        procs = []
+        if not _listening(port):  # else a viewer runs there already: log to it
+            args = ["--port", str(port), "--bind", bind, "--memory-limit", "75%", "--expect-data-soon"]
+            procs.append(start_viewer(args, port, "view", detach=True))
+        rec.set_sinks(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"), default_blueprint=default_blueprint())
+        return rec, None, procs
     sinks: list = []
     if rrd is not None:
         sinks.append(rr.FileSink(rrd))
     if connect is not None:
         sinks.append(rr.GrpcSink(connect))
     if serve_web:
-        server = rr.GrpcServerSink(port=grpc_port or 9876)
+        server = rr.GrpcServerSink(bind_ip=bind, port=grpc_port or 9876)
         sinks.append(server)
     if not sinks:
         raise ValueError("choose at least one of rrd, connect, serve_web or spawn")
     rec.set_sinks(*sinks, default_blueprint=default_blueprint())
+    procs = []
     if serve_web:
-        # the server listens on every interface; a browser must be sent to an address it can reach
-        uri = server.uri.replace("://0.0.0.0:", "://127.0.0.1:")
-        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=uri)
-        address = f"http://localhost:{web_port or 9090}/?url={uri}"
-    return rec, address
+        # a browser must be sent to an address it can reach: the loopback for an unspecified bind
+        uri = server.uri.replace("://0.0.0.0:", "://127.0.0.1:").replace("://[::]:", "://127.0.0.1:")
+        port = web_port or 9090
+        args = ["--serve-web", "--bind", bind, "--web-viewer-port", str(port), uri]
+        procs.append(start_viewer(args, port, "--serve-web", detach=False, host=bind))
+        host = "localhost" if bind in ("0.0.0.0", "::") or is_loopback(bind) else bind
+        address = f"http://{host}:{port}/?url={uri}"
+    return rec, address, procs
