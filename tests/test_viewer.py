@@ -105,3 +105,17 @@ def test_has_display_follows_the_environment(monkeypatch):
     assert has_display() == (sys.platform == "darwin" or os.name == "nt")
     monkeypatch.setenv("WAYLAND_DISPLAY", "wayland-0")
     assert has_display()
+
+
+def test_a_viewer_that_ends_during_the_run_stops_it_with_an_error():
+    """A spawned viewer closed mid-run: the next frame's logging raises instead of feeding a stream
+    that nobody reads (its sender then blocked forever)."""
+    from prc_slam.jobs.common import Viewer
+    from prc_slam.viz.sink import ViewerError
+
+    viewer = Viewer()
+    viewer._spawned = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+    viewer._spawned.wait()
+    with pytest.raises(ViewerError, match=r"the Rerun viewer ended during the run \(exit code 3\)"):
+        viewer.check()
+    viewer.check()  # said once

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from prc_slam.cli.common import (
+    BIND_OPT,
     COLS_OPT,
     CONNECT_OPT,
     EVERY_OPT,
@@ -69,6 +70,7 @@ def classify(
     rrd: Path | None = RRD_OPT,
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
+    bind: str = BIND_OPT,
     log_every: int = EVERY_OPT,
 ) -> None:
     """Classify every frame with PRC; score against ground truth when the input has it."""
@@ -85,7 +87,7 @@ def classify(
         named = Preset.paper if preset is ClassifyPreset.auto else Preset(preset.value)
         cfg = prc_config(mode, named, adaptive, config)
     opts = input_options(topic, meta, model, rows, cols, destaggered, organize)
-    viewer = Viewer(rrd, connect, serve_web, log_every)
+    viewer = Viewer(rrd, connect, serve_web, log_every, bind=bind)
     with progress() as reporter:
         metrics, written = classify_job(
             input, cfg, mode=mode.value, adaptive=adaptive, fmt=fmt, max_frames=max_frames,
@@ -141,6 +143,7 @@ def detect(
     rrd: Path | None = RRD_OPT,
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
+    bind: str = BIND_OPT,
     log_every: int = EVERY_OPT,
     paper: bool = typer.Option(
         False, "--paper", help="the paper's readings (our deviations off, except where profiler lines start)"
@@ -153,7 +156,7 @@ def detect(
     from prc_slam.jobs.progress import progress
 
     check_outputs(labels_out=(labels_out, "dir"), las=(las, "file"), json_path=(json_path, "file"), rrd=(rrd, "file"))
-    viewer = Viewer(rrd, connect, serve_web, log_every)
+    viewer = Viewer(rrd, connect, serve_web, log_every, bind=bind)
     with progress() as reporter:
         metrics, written = detect_job(
             input, paper=paper, fmt=fmt, max_frames=max_frames, outputs=Outputs(labels_out, las), viewer=viewer,

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from prc_slam.cli.common import (
+    BIND_OPT,
     CONNECT_OPT,
     EVERY_OPT,
     MAP_VOXEL_OPT,
@@ -31,6 +32,7 @@ def demo(
     seed: int = typer.Option(0, min=0, help="scene and noise seed"),
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
+    bind: str = BIND_OPT,
     log_every: int = EVERY_OPT,
     map_voxel: float = MAP_VOXEL_OPT,
 ) -> None:
@@ -50,7 +52,7 @@ def demo(
     cfg = Config(prc=PRCConfig.preset("multibeam"))
     with progress() as reporter:
         root, cached = simulated_drive(out, frames, seed, reporter)
-        viewer = Viewer(rrd, connect, serve_web, log_every, map_voxel=map_voxel)
+        viewer = Viewer(rrd, connect, serve_web, log_every, map_voxel=map_voxel, bind=bind)
         run, _ = run_odometry(root, cfg, ["raw", "prc"], online=True, score_prc=True, viewer=viewer, reporter=reporter)
     console.print(f"simulated drive: {root}" + (" (cached)" if cached else ""), highlight=False)
     written = write_outputs(run, cfg, out, f"Raw vs PRC-filtered KISS-ICP on {root.name}")

@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from prc_slam.cli.common import (
+    BIND_OPT,
     CONNECT_OPT,
     EVERY_OPT,
     FORMAT_OPT,
@@ -71,6 +72,7 @@ def live(
     rrd: Path | None = RRD_OPT,
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
+    bind: str = BIND_OPT,
     spawn: bool = typer.Option(False, "--spawn", help="spawn the Rerun desktop viewer and watch live"),
     log_every: int = EVERY_OPT,
     out: Path | None = typer.Option(None, "--out", help="write the filtered stream here (.mcap), as the run goes"),
@@ -107,7 +109,7 @@ def live(
         max_frames=max_frames, model=model, meta=meta, fmt=fmt,
         open_options={"meta": meta} if (src.kind == "file" and meta is not None) else {},
     )  # fmt: skip
-    viewer = Viewer(rrd, connect, serve_web, log_every, spawn=spawn)
+    viewer = Viewer(rrd, connect, serve_web, log_every, spawn=spawn, bind=bind)
     run = run_live(src, cfg, opts, viewer=viewer, poses_out=poses_out, filtered_out=out, labels_out=labels_out)
     console.print(summary_line(run.metrics), highlight=False)
     written = list(run.written)

@@ -12,6 +12,7 @@ from typing import Any
 import typer
 
 from prc_slam.cli.common import (
+    BIND_OPT,
     COLS_OPT,
     CONNECT_OPT,
     FORMAT_OPT,
@@ -135,6 +136,7 @@ def mapclass(
     rrd: Path | None = RRD_OPT,
     connect: str | None = CONNECT_OPT,
     serve_web: bool = SERVE_OPT,
+    bind: str = BIND_OPT,
     map_voxel: float = typer.Option(0.2, "--map-voxel", min=0.0, help="thin the logged map to this voxel (m)"),
 ) -> None:
     """Classify a registered map after registration (paper 004) and segregate it into
@@ -160,7 +162,7 @@ def mapclass(
         cfg.mapclass.normals = normals.value
     if mode is not None:
         cfg.mapclass.mode = mode.value
-    viewer = Viewer(rrd, connect, serve_web, 1, map_voxel=map_voxel)
+    viewer = Viewer(rrd, connect, serve_web, 1, map_voxel=map_voxel, bind=bind)
     with contextlib.ExitStack() as stack:
         tiler = None
         if scheduler is not None or workers is not None or os.environ.get("DASK_SCHEDULER_ADDRESS"):
