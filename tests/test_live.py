@@ -45,23 +45,30 @@ def config():
     return run_config(Preset.multibeam, None)
 
 
-def live_over_replay(capture: Path, tmp_path: Path, *, replay_kw=None, during=None, **opts):
-    """``run_live`` on a free loopback port while ``capture`` is replayed into it (``during(rx)``
-    runs beside, e.g. to send other datagrams). Returns (LiveRun, replay stats)."""
-    out: dict = {}
+def live_over_replay(capture: Path, tmp_path: Path, *, replay_kw=None, during=None, kill_after=None, **opts):
+    """``run_live`` on a free loopback port while ``capture`` is replayed into it by a second
+    process, started ahead and told the port once the receiver listens (``during(rx)`` runs
+    beside on a thread, e.g. to send other datagrams; ``kill_after``: the replaying process is
+    killed after that many seconds). Returns (LiveRun, replay stats, None when killed)."""
+    import multiprocessing as mp
+
+    from prc_slam.live.replay import replay_when_told
+
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe()
+    proc = ctx.Process(target=replay_when_told, args=(capture, child, replay_kw or {}), daemon=True)
+    proc.start()
     threads: list[threading.Thread] = []
 
     def on_ready(rx):
-        def play():
-            out["replay"] = replay(capture, LOOPBACK, rx.port, **(replay_kw or {}))
-
-        threads.append(threading.Thread(target=play, daemon=True))
+        parent.send(rx.port)
+        if kill_after is not None:
+            threading.Timer(kill_after, proc.kill).start()
         if during is not None:
             threads.append(threading.Thread(target=during, args=(rx,), daemon=True))
-        for t in threads:
-            t.start()
+            threads[-1].start()
 
-    options = LiveOptions(timeout=opts.pop("timeout", 1.5), queue=opts.pop("queue", 1000), **opts)
+    options = LiveOptions(timeout=opts.pop("timeout", 1.0), queue=opts.pop("queue", 1000), **opts)
     try:
         run = run_live(
             Source("velodyne", LOOPBACK, 0), config(), options, poses_out=tmp_path / "poses.txt", on_ready=on_ready
@@ -69,7 +76,11 @@ def live_over_replay(capture: Path, tmp_path: Path, *, replay_kw=None, during=No
     finally:
         for t in threads:
             t.join(timeout=10)
-    return run, out.get("replay")
+        proc.join(timeout=10)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+    return run, (parent.recv() if parent.poll(0.5) else None)
 
 
 def test_queue_drops_the_oldest_whole_sweep():
@@ -145,19 +156,13 @@ def test_second_sensor_on_the_port_is_an_error(capture, tmp_path):
     assert (tmp_path / "poses.txt").exists()  # closed, whatever it holds
 
 
-def test_sender_killed_warns_then_timeout_ends_with_valid_outputs(capture, tmp_path, caplog):
-    stop = threading.Event()
-
-    def kill_after(_rx):
-        time.sleep(0.25)
-        stop.set()
-
-    run, sent = live_over_replay(capture, tmp_path, replay_kw={"stop": stop}, during=kill_after, timeout=2.5)
+def test_sender_killed_warns_then_timeout_ends_with_valid_outputs(capture, tmp_path):
+    run, sent = live_over_replay(capture, tmp_path, replay_kw={"rate": 0.25}, kill_after=1.0, timeout=2.5)
     m = run.metrics
-    assert sent.sent < 6 * 75
+    assert sent is None  # killed before it finished
     assert m["ended_by"] == "timeout"
     assert any("no packets for 2 s" in w for w in m["warnings"])
-    assert 1 <= m["frames"] <= 3
+    assert 1 <= m["frames"] < 6 and m["frames"] == m["sweeps_in"]
     lines = (tmp_path / "poses.txt").read_text().splitlines()
     assert len(lines) == m["frames"] and all(len(x.split()) == 8 for x in lines)
 

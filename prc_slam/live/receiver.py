@@ -16,6 +16,8 @@ from __future__ import annotations
 import collections
 import logging
 import socket
+import struct
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -35,6 +37,8 @@ SILENCE_WARN_S = 2.0
 #: nominal spacing of data packets in GPS microseconds (12 blocks of firings)
 PACKET_PERIOD_US = {"HDL32E": 12 * 46.08, "VLP16": 12 * 2 * 55.296, "PuckHiRes": 12 * 2 * 55.296}
 HOUR_US = 3_600_000_000
+#: Linux: kernel receive stamps of datagrams (struct timespec), SO_TIMESTAMPNS / SCM_TIMESTAMPNS
+SO_TIMESTAMPNS = SCM_TIMESTAMPNS = 35
 
 
 class LiveError(DataError):
@@ -145,6 +149,7 @@ class VelodyneAssembler:
         self.name = name
         self.forced_model = model
         self.reader: Any = None  # a VelodynePcapSequence set up for the model, without a file
+        self.model: str | None = None
         self.decoder: Any = None
         self.index = 0
         self.lost = 0  # in the sweep being assembled
@@ -152,10 +157,7 @@ class VelodyneAssembler:
         self._period_us: float | None = None
 
     def _start(self, payload: bytes) -> None:
-        import velodyne_decoder as vd
-
-        from data_tools.organize import Organizer
-        from data_tools.velodyne_pcap import FACTORY_MODELS, MODEL_LASERS, VelodynePcapSequence
+        from data_tools.velodyne_pcap import FACTORY_MODELS
 
         entry = FACTORY_MODELS.get(payload[-1])
         model = self.forced_model or (None if entry is None else entry[0])
@@ -164,17 +166,27 @@ class VelodyneAssembler:
                 f"{self.name}: data packets without a known factory byte (0x{payload[-1]:02x}; an HDL-64E?): "
                 "give --model"
             )
+        self.setup(model)
+        self.decoder = self.reader._vd.StreamDecoder(self.reader._config())
+        log.info(f"{self.name}: {model} data packets")
+
+    def setup(self, model: str) -> None:
+        """The offline reader's settings for ``model`` (no decoder; the organiser comes with the first
+        :meth:`scan_of`)."""
+        import velodyne_decoder as vd
+
+        from data_tools.velodyne_pcap import MODEL_LASERS, VelodynePcapSequence
+
         reader = VelodynePcapSequence.__new__(VelodynePcapSequence)
         reader._vd = vd
         reader.root = self.name
         reader.model = model
         reader.calibration = None
         reader.rows = MODEL_LASERS.get(model)
-        reader.organizer = Organizer(rows=reader.rows, source_name=self.name)
+        reader.organizer = None  # made by scan_of, in the process that organises
         self.reader = reader
-        self.decoder = vd.StreamDecoder(reader._config())
+        self.model = model
         self._period_us = PACKET_PERIOD_US.get(model)
-        log.info(f"{self.name}: {model} data packets")
 
     def _count_lost(self, payload: bytes) -> None:
         gps = int.from_bytes(payload[1200:1204], "little")
@@ -216,6 +228,10 @@ class VelodyneAssembler:
 
     def scan_of(self, sweep: Sweep):
         """The Scan of a received sweep (the offline reader's organisation)."""
+        if self.reader.organizer is None:
+            from data_tools.organize import Organizer
+
+            self.reader.organizer = Organizer(rows=self.reader.rows, source_name=self.name)
         return self.reader.scan_of(sweep.index, sweep.stamp, sweep.points)
 
 
@@ -274,6 +290,13 @@ class UdpReceiver(threading.Thread):
             sock.close()
             raise OSError(f"{self.label}: cannot listen on {self.host}:{self.port}: {exc.strerror or exc}") from None
         sock.settimeout(0.2)
+        self._stamped = False
+        if sys.platform.startswith("linux"):
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                self._stamped = True
+            except OSError:
+                pass
         self.sock = sock
         self.port = sock.getsockname()[1]
 
@@ -287,7 +310,7 @@ class UdpReceiver(threading.Thread):
         try:
             while not self.stop_event.is_set():
                 try:
-                    data, addr = self.sock.recvfrom(65535)
+                    data, addr, wall = self._receive()
                 except TimeoutError:
                     quiet = time.perf_counter() - silent_since
                     if quiet >= SILENCE_WARN_S * (warned + 1):
@@ -297,7 +320,9 @@ class UdpReceiver(threading.Thread):
                         log.warning(msg)
                     continue
                 now = time.perf_counter()
-                self.handle(data, addr, now)
+                # received when the kernel stamped it (our own stalls are part of the latency)
+                arrived = now - max(0.0, time.time() - wall)
+                self.handle(data, addr, arrived, wall)
                 silent_since, warned = now, 0
         except LiveError as exc:
             self.error = exc
@@ -306,8 +331,23 @@ class UdpReceiver(threading.Thread):
         finally:
             self.sock.close()
 
-    def handle(self, data: bytes, addr: tuple[str, int], now: float) -> None:
-        """One datagram: a data packet of the sensor is decoded; anything else is counted."""
+    def _receive(self) -> tuple[bytes, tuple[str, int], float]:
+        """One datagram, its sender and its arrival (wall clock, s): the kernel's receive stamp
+        where there is one, so that the decoder's host times do not depend on this process's
+        scheduling (the decoder cuts a sweep at a gap in them), else the time it is read."""
+        if not self._stamped:
+            data, addr = self.sock.recvfrom(65535)
+            return data, addr, time.time()
+        data, anc, _flags, addr = self.sock.recvmsg(65535, 64)
+        for level, kind, payload in anc:
+            if level == socket.SOL_SOCKET and kind == SCM_TIMESTAMPNS and len(payload) >= 16:
+                sec, nsec = struct.unpack("qq", payload[:16])
+                return data, addr, sec + nsec * 1e-9
+        return data, addr, time.time()
+
+    def handle(self, data: bytes, addr: tuple[str, int], now: float, wall: float | None = None) -> None:
+        """One datagram (``now``: its arrival on ``time.perf_counter()``, ``wall``: on the wall
+        clock): a data packet of the sensor is decoded; anything else is counted."""
         if not self.accept(data):
             self.stats.foreign_packets += 1
             return
@@ -316,7 +356,7 @@ class UdpReceiver(threading.Thread):
         self.stats.packets += 1
         self.stats.last_packet = now
         with self._lock:
-            done = self.assembler.feed(data, time.time())
+            done = self.assembler.feed(data, time.time() if wall is None else wall)
         if done is not None:
             self._put(done, now)
 
@@ -405,3 +445,196 @@ class RealtimeReader(threading.Thread):
         finally:
             self.finished = True
             self.queue.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# the Velodyne receiver in its own process
+
+
+class _LockedConn:
+    """A pipe end whose ``send`` may be called from several threads."""
+
+    def __init__(self, conn: Any) -> None:
+        self.conn = conn
+        self._lock = threading.Lock()
+
+    def send(self, msg: Any) -> None:
+        with self._lock:
+            self.conn.send(msg)
+
+    def poll(self, timeout: float) -> bool:
+        return self.conn.poll(timeout)
+
+    def recv(self) -> Any:
+        return self.conn.recv()
+
+
+class _PipeQueue:
+    """The child's side of the sweep queue: every sweep goes to the parent at once."""
+
+    def __init__(self, conn: Any, receiver: UdpReceiver) -> None:
+        self.conn, self.receiver = conn, receiver
+
+    def put(self, sweep: Sweep) -> None:
+        self.conn.send(("sweep", sweep, self.receiver.assembler.model, _stats_of(self.receiver.stats)))
+
+
+def _stats_of(stats: ReceiverStats) -> dict[str, Any]:
+    return {k: getattr(stats, k) for k in ("packets", "foreign_packets", "lost_packets", "last_packet", "sender")}
+
+
+class _ChildLog(logging.Handler):
+    """The child's warnings, sent to the parent (which logs them)."""
+
+    def __init__(self, conn: Any) -> None:
+        super().__init__(logging.INFO)
+        self.conn = conn
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self.conn.send(("log", record.levelno, record.getMessage()))
+        except (OSError, ValueError):  # pragma: no cover - the parent has gone
+            pass
+
+
+def _receiver_main(host: str, port: int, name: str, model: str | None, conn: Any, stop: Any) -> None:
+    """The receiving process: listens, decodes, sends whole sweeps and counts to the parent."""
+    conn = _LockedConn(conn)
+    log.handlers[:] = [_ChildLog(conn)]
+    log.setLevel(logging.INFO)
+    log.propagate = False
+    rx = UdpReceiver(host, port, VelodyneAssembler(name, model), is_velodyne_data, None, name)  # type: ignore[arg-type]
+    rx.queue = _PipeQueue(conn, rx)  # type: ignore[assignment]
+    try:
+        rx.bind()
+    except OSError as exc:
+        conn.send(("error", str(exc)))
+        return
+    conn.send(("ready", rx.port))
+    rx.stop_event = stop
+    watcher = threading.Thread(target=_serve_commands, args=(rx, conn), daemon=True)
+    watcher.start()
+    rx.run()
+    if rx.error is not None:
+        conn.send(("error", str(rx.error)))
+    conn.send(("stats", _stats_of(rx.stats), list(rx.stats.warnings)))
+    conn.send(("end",))
+
+
+def _serve_commands(rx: UdpReceiver, conn: Any) -> None:
+    """The parent's requests to the child: ``flush`` (the stream has ended) and heartbeats of counts."""
+    while not rx.stop_event.is_set():
+        if conn.poll(0.25):
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                return
+            if msg == "flush":
+                done = rx.flush()
+                conn.send(("flushed", done))
+        conn.send(("stats", _stats_of(rx.stats), None))
+
+
+class ProcessReceiver(threading.Thread):
+    """A Velodyne receiver in its own process (spawned): the socket, the decoding and the sweep
+    assembly never wait for the GIL that KISS-ICP holds while it registers, and take nothing from
+    the processing's. This thread takes the sweeps it sends into ``queue`` (dropping the oldest
+    when full); the interface is :class:`UdpReceiver`'s."""
+
+    def __init__(self, host: str, port: int, name: str, model: str | None, queue: SweepQueue) -> None:
+        super().__init__(name="prc-slam-receiver-pipe", daemon=True)
+        import multiprocessing as mp
+
+        self.host, self.port, self.label = host, port, name
+        self.queue = queue
+        self.assembler = VelodyneAssembler(name, model)
+        self.stats = ReceiverStats()
+        self.error: BaseException | None = None
+        self._ctx = mp.get_context("spawn")
+        self._stop_event = self._ctx.Event()
+        self._conn, child = self._ctx.Pipe()
+        self._proc = self._ctx.Process(
+            target=_receiver_main, args=(host, port, name, model, child, self._stop_event), name="prc-slam-receiver",
+            daemon=True,
+        )  # fmt: skip
+        self._flushed = threading.Event()
+        self._flush_result = False
+        self._send_lock = threading.Lock()
+
+    def bind(self, timeout: float = 60.0) -> None:
+        """Start the receiving process and wait until it listens (an OSError names the address)."""
+        self._proc.start()
+        if not self._conn.poll(timeout):
+            self._kill()
+            raise OSError(f"{self.label}: the receiving process did not start within {timeout:g} s")
+        msg = self._conn.recv()
+        if msg[0] == "error":
+            self._kill()
+            raise OSError(msg[1])
+        self.port = int(msg[1])
+
+    def _kill(self) -> None:
+        if self._proc.is_alive():
+            self._proc.terminate()
+        self._proc.join(timeout=5)
+        if self._proc.is_alive():  # pragma: no cover - a child ignoring SIGTERM
+            self._proc.kill()
+            self._proc.join(timeout=5)
+
+    def run(self) -> None:
+        try:
+            while True:
+                try:
+                    msg = self._conn.recv()
+                except (EOFError, OSError):
+                    break
+                kind = msg[0]
+                if kind == "sweep":
+                    _kind, sweep, model, stats = msg
+                    if self.assembler.reader is None:
+                        self.assembler.setup(model)
+                    self._update(stats)
+                    if sweep.flushed:
+                        self.stats.sweeps += 1
+                    else:
+                        self.stats.sweep_done(sweep.received)
+                    self.queue.put(sweep)
+                elif kind == "stats":
+                    self._update(msg[1])
+                elif kind == "log":
+                    log.log(msg[1], msg[2])
+                    if msg[1] >= logging.WARNING:
+                        self.stats.warnings.append(msg[2])
+                elif kind == "flushed":
+                    self._flush_result = bool(msg[1])
+                    self._flushed.set()
+                elif kind == "error":
+                    self.error = LiveError(msg[1])
+                elif kind == "end":
+                    break
+        finally:
+            self._flushed.set()
+
+    def _update(self, stats: dict[str, Any]) -> None:
+        for k, v in stats.items():
+            setattr(self.stats, k, v)
+
+    def flush(self) -> bool:
+        """Have the process queue the sweep being assembled; True when there was one."""
+        if not self._proc.is_alive():
+            return False
+        self._flushed.clear()
+        with self._send_lock:
+            self._conn.send("flush")
+        self._flushed.wait(5.0)
+        return self._flush_result
+
+    def stop(self) -> None:
+        self._stop_event.set()
+
+    def join(self, timeout: float | None = None) -> None:
+        self._stop_event.set()
+        self._proc.join(timeout=timeout)
+        if self._proc.is_alive():
+            self._kill()
+        super().join(timeout=timeout)

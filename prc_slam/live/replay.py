@@ -121,3 +121,10 @@ def replay(
         sock.close()
         stats.seconds = time.perf_counter() - start
     return stats
+
+
+def replay_when_told(path: str | Path, conn, kwargs: dict) -> None:
+    """Wait for a port on ``conn``, replay ``path`` to it on loopback, send the stats back (a
+    replaying process started ahead of the receiver, for tests and demos)."""
+    port = conn.recv()
+    conn.send(replay(path, "127.0.0.1", int(port), **kwargs))

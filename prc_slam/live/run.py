@@ -60,6 +60,7 @@ class LiveOptions:
     meta: Path | None = None
     fmt: str | None = None
     open_options: dict[str, Any] = field(default_factory=dict)
+    receiver_process: bool = True  # Velodyne: receive and decode in a second process
 
 
 class LivePipeline(Pipeline):
@@ -367,9 +368,13 @@ def percentiles_ms(latency_s: list[float]) -> dict[str, float | None]:
 def open_source(source: Source, queue: SweepQueue, opts: LiveOptions) -> Any:
     """The receiver thread of ``source`` (bound, not started)."""
     if source.kind == "velodyne":
-        from prc_slam.live.receiver import VelodyneAssembler, is_velodyne_data
+        from prc_slam.live.receiver import ProcessReceiver, VelodyneAssembler, is_velodyne_data
 
-        rx = UdpReceiver(source.host, source.port, VelodyneAssembler(str(source), opts.model), is_velodyne_data, queue)
+        if opts.receiver_process:
+            rx = ProcessReceiver(source.host, source.port, str(source), opts.model, queue)
+        else:
+            assembler = VelodyneAssembler(str(source), opts.model)
+            rx = UdpReceiver(source.host, source.port, assembler, is_velodyne_data, queue)
         rx.bind()
         return rx
     if source.kind == "ouster":
