@@ -187,9 +187,11 @@ def _watch(fd: int) -> None:
             except OSError:
                 return
             # only the signals our handler is to handle (a job may install its own for a while)
-            got = sum(1 for b in data if b in HANDLED and signal.getsignal(b) is state.handler)
+            ours = [b for b in data if b in HANDLED and signal.getsignal(b) is state.handler]
+            got = len(ours)
             if got:
                 with state.lock:
+                    state.signum = state.signum or ours[-1]  # the exit code's, if the handler never runs
                     state.received += got
                     if state.unhandled_since is None and state.received > state.handled:
                         state.unhandled_since = now

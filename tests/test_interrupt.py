@@ -196,3 +196,62 @@ def test_the_frame_process_dies_with_its_parent(tmp_path, sig):
     finally:
         parent.kill()
         parent.wait()
+
+
+_BLOCKED = """
+import sys
+import numpy as np
+import rerun as rr
+import prc_slam.cli
+from prc_slam import launcher
+
+def blocked():  # a stream to a viewer that is not there: the sender blocks once its queue is full
+    rec = rr.RecordingStream("blocked")
+    rec.set_sinks(rr.GrpcSink(f"rerun+http://127.0.0.1:{sys.argv[1]}/proxy"))
+    points = np.random.default_rng(0).random((200_000, 3), dtype=np.float32)
+    for i in range(100_000):
+        rec.set_time("frame", sequence=i)
+        rec.log("points", rr.Points3D(points))
+        print(i, flush=True)
+
+prc_slam.cli.app = blocked
+launcher.main()
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupt_ends_a_run_blocked_in_native_code(tmp_path, sig):
+    """Before: with the Rerun viewer gone, the sender blocked inside a native call ("Sender has been
+    blocked ...") where no Python signal handler runs: Ctrl-C was ignored, the run hung forever."""
+    import socket
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    script = tmp_path / "blocked.py"
+    script.write_text(_BLOCKED)
+    out = tmp_path / "out.txt"
+    proc = subprocess.Popen(
+        [sys.executable, str(script), str(port)],
+        stdout=out.open("w"),
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        # the queue fills within a few hundred frames; then no frame is logged for seconds
+        def stalled() -> bool:
+            before = out.read_text().count("\n")
+            time.sleep(2.0)
+            return before > 0 and out.read_text().count("\n") == before
+
+        assert wait_until(stalled, 120), "the sender never blocked"
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == (130 if sig == signal.SIGINT else 143), err
+    errors = [line for line in err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "stuck in a native call" in errors[0], err
