@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test bench lint docs system-deps clean clean-cache
+.PHONY: setup demo live-demo test bench lint docs system-deps clean clean-cache
 
 $(STAMP): pyproject.toml
 	bash scripts/ensure_system_deps.sh
@@ -21,6 +21,18 @@ system-deps:
 
 demo: setup
 	$(VENV)/bin/prc-slam demo
+
+# the live tour: a simulated HDL-32E capture (made once) replayed over loopback into `prc-slam live`
+LIVE_DIR ?= out/live-demo
+LIVE_PORT ?= 2368
+live-demo: setup
+	test -f $(LIVE_DIR)/capture.pcap || $(VENV)/bin/prc-slam simulate --sensor hdl32 --frames 150 \
+		--out $(LIVE_DIR)/sim --pcap $(LIVE_DIR)/capture.pcap
+	( sleep 8; $(VENV)/bin/prc-slam replay $(LIVE_DIR)/capture.pcap --to udp://127.0.0.1:$(LIVE_PORT) ) & \
+	trap 'kill $$! 2>/dev/null' EXIT; \
+	$(VENV)/bin/prc-slam live velodyne://127.0.0.1:$(LIVE_PORT) --timeout 12 --rrd $(LIVE_DIR)/live.rrd \
+		--poses-out $(LIVE_DIR)/poses.txt --out $(LIVE_DIR)/filtered.mcap --json $(LIVE_DIR)/live.json
+	@echo "live tour written to $(LIVE_DIR): live.rrd (rerun $(LIVE_DIR)/live.rrd), poses.txt, filtered.mcap, live.json"
 
 test: setup
 	$(VENV)/bin/pytest -q

@@ -391,11 +391,61 @@ def open_source(source: Source, queue: SweepQueue, opts: LiveOptions) -> Any:
     return RealtimeReader(dataset, n, queue, rate=opts.realtime_rate, period=period)
 
 
-def warm_up(config: Config, online: Any) -> None:
-    """Compile the kernels before receiving, so that the first sweeps are not late."""
+#: velodyne-decoder's point fields
+SWEEP_DTYPE = np.dtype(
+    [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("time", "<f4"), ("column", "<u2"),
+     ("ring", "u1"), ("return_type", "u1")]
+)  # fmt: skip
+
+
+def synthetic_sweep(rings: int = 32, cols: int = 1000, shift: float = 0.0) -> np.ndarray:
+    """A decoded Velodyne sweep (velodyne-decoder's fields) of a street: ground 1.8 m below,
+    walls 8-14 m around; ``shift`` moves the sensor along x (m)."""
+    az = np.repeat(np.linspace(0.0, 2 * np.pi, cols, endpoint=False), rings)
+    ring = np.tile(np.arange(rings), cols)
+    el = np.radians(np.linspace(-30.0, 10.0, rings))[ring]
+    wall = 11.0 + 3.0 * np.sin(3 * az)
+    down = np.where(el < 0, 1.8 / np.maximum(-np.sin(el), 1e-6), np.inf)
+    r = np.minimum(wall / np.maximum(np.cos(el), 1e-6), down)
+    pts = np.zeros(len(az), dtype=SWEEP_DTYPE)
+    pts["x"] = r * np.cos(el) * np.cos(az) - shift
+    pts["y"] = r * np.cos(el) * np.sin(az)
+    pts["z"] = r * np.sin(el)
+    pts["intensity"] = 50.0
+    pts["time"] = np.repeat(np.arange(cols), rings) / cols * 0.1 - 0.1
+    pts["column"] = np.repeat(np.arange(cols), rings)
+    pts["ring"] = ring
+    pts["return_type"] = 1
+    return pts
+
+
+def warm_up(config: Config, variant: str, online: bool) -> None:
+    """Compile the kernels before receiving (organiser, PRC, filter, KISS-ICP, online detectors)
+    on a few synthetic sweeps through throwaway stages, so that the first sweeps are not late."""
+    from prc_slam.live.receiver import VelodyneAssembler
+    from prc_slam.odometry.compare import OdometryVariants
     from prc_slam.prc.algorithm import warm_up as prc_warm_up
 
     prc_warm_up()
+    assembler = VelodyneAssembler("warm-up")
+    assembler.setup("HDL32E")
+    scans = [assembler.scan_of(Sweep(i, 0.0, 100.0 + 0.1 * i, synthetic_sweep(shift=0.3 * i))) for i in range(4)]
+    detector = None
+    if online:
+        from prc_slam.online import OnlineDetector
+
+        detector = OnlineDetector()
+    stage = OdometryVariants(config.model_copy(deep=True), [variant])
+    pipe = LivePipeline(prc=config.prc if stage.needs_prc else None, online=detector, odometry=stage, warn=_silent)
+    logging.disable(logging.WARNING)  # the synthetic sweeps' notes are no one's business
+    try:
+        pipe.run(iter(scans))
+    finally:
+        logging.disable(logging.NOTSET)
+
+
+def _silent(_message: str) -> None:
+    """Drops a warning."""
 
 
 class _Signals:
@@ -447,12 +497,14 @@ def run_live(
     # a period away) before giving this one's pose
     config.odometry.overlap = False
     stage = OdometryVariants(config, [opts.variant])
+    t_warm = time.perf_counter()
+    warm_up(config, opts.variant, opts.online)
+    log.info(f"live: stages warmed up in {time.perf_counter() - t_warm:.1f} s")
     detector = None
     if opts.online:
         from prc_slam.online import OnlineDetector
 
         detector = OnlineDetector()
-    warm_up(config, detector)
     queue = SweepQueue(opts.queue)
     rx = open_source(source, queue, opts)
     viewer = viewer or Viewer()
