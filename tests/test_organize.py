@@ -472,13 +472,13 @@ def test_a_ring_field_of_one_value_is_ignored_with_a_warning():
 def test_nearest_beam_counts_the_bounds_at_or_above(bounds, te):
     """The table-guided search gives every point the number of beam bounds at or above its
     elevation (its row), also for repeated bounds, points on a bound and far outside."""
-    from data_tools.organize import _nearest_beam
+    from data_tools.organize.beams import nearest_beam
 
     b = np.sort(np.array(bounds, float))[::-1]
     t = np.concatenate([np.array(te), b, [1e6, -1e6]])
     ok = np.ones(len(t), bool)
     ok[::7] = False
-    row = _nearest_beam(t, ok, b, np.empty(len(t), np.int64))
+    row = nearest_beam(t, ok, b, np.empty(len(t), np.int64))
     expected = np.where(ok, (b[None, :] >= t[:, None]).sum(axis=1), -1)
     np.testing.assert_array_equal(row, expected)
 
