@@ -68,6 +68,7 @@ def live_over_replay(capture: Path, tmp_path: Path, *, replay_kw=None, during=No
             threads.append(threading.Thread(target=during, args=(rx,), daemon=True))
             threads[-1].start()
 
+    opts.setdefault("warm_up", False)  # (latency is not what these tests check)
     options = LiveOptions(timeout=opts.pop("timeout", 1.0), queue=opts.pop("queue", 1000), **opts)
     try:
         run = run_live(
@@ -169,7 +170,7 @@ def test_sender_killed_warns_then_timeout_ends_with_valid_outputs(capture, tmp_p
 
 def test_realtime_recording_as_a_sensor(capture, tmp_path):
     src = parse_source(str(capture.parent / "seq"))
-    run = run_live(src, config(), LiveOptions(queue=100), poses_out=tmp_path / "p.txt")
+    run = run_live(src, config(), LiveOptions(queue=100, warm_up=False), poses_out=tmp_path / "p.txt")
     m = run.metrics
     assert m["frames"] == 6 and m["ended_by"] == "end of recording"
     assert m["rate_hz_in"] == pytest.approx(10.0, rel=0.5)
@@ -238,7 +239,7 @@ def test_ouster_packets_labelled_as_offline(tmp_path):
 
     try:
         run = run_live(
-            Source("ouster", LOOPBACK, 0), config(), LiveOptions(timeout=1.5, queue=100, meta=meta),
+            Source("ouster", LOOPBACK, 0), config(), LiveOptions(timeout=1.5, queue=100, meta=meta, warm_up=False),
             labels_out=tmp_path / "live", on_ready=on_ready,
         )  # fmt: skip
     finally:

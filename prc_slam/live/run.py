@@ -61,6 +61,7 @@ class LiveOptions:
     fmt: str | None = None
     open_options: dict[str, Any] = field(default_factory=dict)
     receiver_process: bool = True  # Velodyne: receive and decode in a second process
+    warm_up: bool = True  # compile the stages on synthetic sweeps before listening
 
 
 class LivePipeline(Pipeline):
@@ -497,9 +498,10 @@ def run_live(
     # a period away) before giving this one's pose
     config.odometry.overlap = False
     stage = OdometryVariants(config, [opts.variant])
-    t_warm = time.perf_counter()
-    warm_up(config, opts.variant, opts.online)
-    log.info(f"live: stages warmed up in {time.perf_counter() - t_warm:.1f} s")
+    if opts.warm_up:
+        t_warm = time.perf_counter()
+        warm_up(config, opts.variant, opts.online)
+        log.info(f"live: stages warmed up in {time.perf_counter() - t_warm:.1f} s")
     detector = None
     if opts.online:
         from prc_slam.online import OnlineDetector
