@@ -282,7 +282,7 @@ def view(
     spawn = not serve_web and rrd is None
     viewer = Viewer(
         rrd, None, serve_web, log_every, spawn=spawn, serve_seconds=serve_seconds, web_port=web_port,
-        grpc_port=grpc_port, bind=bind,
+        grpc_port=grpc_port, bind=bind, spawn_name="view",
     )  # fmt: skip
     cfg = Config(prc=PRCConfig.preset("multibeam"))
     try:

@@ -105,6 +105,14 @@ def write_json(path: Path, data: dict[str, Any], config: Config | None = None) -
     return written
 
 
+def _shown(path: Path) -> str:
+    """``path`` as the user would type it: relative to the working directory when below it."""
+    try:
+        return str(path.relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
 #: seconds the recording may take to reach its file or viewer at the end of a run; beyond, the
 #: rest is dropped with a warning instead of blocking (a viewer that stopped taking data)
 FLUSH_TIMEOUT_S = 20.0
@@ -148,6 +156,7 @@ class Viewer:
         web_port: int | None = None,
         grpc_port: int | None = None,
         bind: str = "127.0.0.1",
+        spawn_name: str = "--spawn",
     ) -> None:
         self.sink = None
         self.rrd = rrd
@@ -155,14 +164,15 @@ class Viewer:
         self.serve_web, self.serve_seconds = serve_web, serve_seconds
         self._spawned = None  # a desktop viewer started for this run (it stays open after it)
         self._servers: list = []  # the web viewer's server (ended with the run)
+        self.spawn_name = spawn_name
         if rrd is None and connect is None and not serve_web and not spawn:
             return
         from prc_slam.viz.sink import RerunSink, ViewerError, VizConfig, has_display, start_recording
 
         if spawn and not has_display():
             raise ViewerError(
-                "view: no display to open the viewer on; use --serve-web (browser) or --rrd FILE "
-                f"(open later with {Path(sys.executable).parent / 'rerun'} FILE)"
+                f"{spawn_name}: no display to open the viewer on; use --serve-web (browser) or --rrd FILE "
+                f"(open later with {_shown(Path(sys.executable).parent / 'rerun')} FILE)"
             )
         if serve_web and (note := exposed_warning(bind, [web_port or 9090, grpc_port or 9876])):
             log.warning(note)
@@ -176,6 +186,7 @@ class Viewer:
             web_port=web_port,
             grpc_port=grpc_port,
             bind=bind,
+            spawn_name=spawn_name,
         )
         if spawn:
             self._spawned = procs[0] if procs else None
@@ -193,7 +204,9 @@ class Viewer:
 
             self._spawned = None
             self.sink = None
-            raise ViewerError(f"view: the Rerun viewer ended during the run (exit code {code}); the run stopped")
+            raise ViewerError(
+                f"{self.spawn_name}: the Rerun viewer ended during the run (exit code {code}); the run stopped"
+            )
 
     @property
     def partial_path(self) -> Path:

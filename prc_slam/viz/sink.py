@@ -480,6 +480,7 @@ def start_recording(
     web_port: int | None = None,
     grpc_port: int | None = None,
     bind: str = LOOPBACK,
+    spawn_name: str = "--spawn",
 ) -> tuple[rr.RecordingStream, str | None, list]:
     """A recording stream writing to any combination of a file, a running viewer and a served
     web viewer, or to a spawned desktop viewer. Returns the stream, for ``serve_web`` the
@@ -489,7 +490,8 @@ def start_recording(
     Everything served listens on ``bind`` (default the loopback: only this machine can connect).
     A spawned viewer is the ``rerun`` executable found by :func:`rerun_executable`; it is waited
     for, and one that ends at start (no display, a port in use) raises :class:`ViewerError` with
-    its own message instead of leaving the stream to block on a viewer that is not there."""
+    its own message instead of leaving the stream to block on a viewer that is not there (the
+    message names ``spawn_name``: the command or option that asked for it)."""
     rec = rr.RecordingStream(application)
     address = None
     if spawn:
@@ -497,7 +499,7 @@ def start_recording(
         procs = []
         if not _listening(port):  # else a viewer runs there already: log to it
             args = ["--port", str(port), "--bind", bind, "--memory-limit", "75%", "--expect-data-soon"]
-            procs.append(start_viewer(args, port, "view", detach=True))
+            procs.append(start_viewer(args, port, spawn_name, detach=True))
         rec.set_sinks(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"), default_blueprint=default_blueprint())
         return rec, None, procs
     sinks: list = []
