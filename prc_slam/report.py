@@ -315,4 +315,11 @@ def classification_section(metrics: dict[str, Any], title: str) -> str:
         lines += ["", f"Reference solid-class points labelled noise: {metrics['noise_in_solid_classes']:.3%}"]
     for name, o in metrics.get("objects", {}).items():
         lines.append(f"- {name} objects found: {o['found']} of {o['present']}")
+    if "vehicle_by_range" in metrics:  # per-instance scores by range band (online detectors)
+        from prc_slam.scoring import range_band_rows
+
+        header, rows = range_band_rows(metrics["vehicle_by_range"])
+        lines += ["", "Vehicles by range (found: at least half of an instance's points labelled vehicle):", ""]
+        lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines) + "\n"

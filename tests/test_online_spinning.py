@@ -386,3 +386,36 @@ def test_a_tilted_stream_is_levelled_for_the_detectors():
     (g_a, v_a), (g_b, v_b), (g_c, _) = np.mean(np.reshape(share, (3, 3, 2)), axis=0)
     assert g_b > g_a - 0.02 and v_b > v_a - 0.05  # levelled: as the level stream
     assert g_c < g_a - 0.2  # not levelled, the tilt loses the ground
+
+
+def test_a_van_beside_the_sensor_cut_by_the_field_of_view_is_a_car():
+    """A 2.05 m van 3 m beside the sensor: the highest beam (+2 deg) passes 1.9 m above the road
+    there, so every column top of the van lies on it. That said the object goes on out of view, and
+    the van was a wall (simulated street, hdl64: a parked van 5 m away missed in all 20 sweeps); its
+    tops there span metres along the ring below a tall vehicle's height, so it is a car now. A post
+    cut by the field of view as close still is none (its tops span less than ``top_width``)."""
+    z0 = -MOUNT
+    van = [((2.0, 3.0, z0 + 0.35), (7.2, 5.0, z0 + 2.05), 1), ((2.6, 3.0, z0), (3.3, 5.0, z0 + 0.35), 1),
+           ((6.0, 3.0, z0), (6.7, 5.0, z0 + 0.35), 1)]  # fmt: skip
+    post = [((-4.0, -3.0, z0), (-3.7, -2.7, z0 + 4.0), 2), ((-5.5, -3.2, z0), (-2.5, -1.8, z0 + 0.8), 3)]
+    found, road = car_share(van + post)
+    assert found[1] > 0.8 and road == 0.0
+    assert found[2] == 0.0
+    old = SpinningCarParams(top_width=0.0)  # every top on the highest beam goes on upward
+    found_old, _ = car_share(van + post, old)
+    assert found_old[1] == 0.0
+
+
+def test_top90_is_the_bin_edge_correctly_rounded():
+    """A segment whose returns all lie 2.25 m up: its 90 % height is the 2.2-2.3 m bin's edge, 2.3 (it
+    was 23 x 0.1 = 2.3000000000000003, over ``max_top`` = 2.3: vans 2.2-2.3 m tall were no cars)."""
+    R, C = 4, 8
+    seg = np.zeros((R, C), np.int32)
+    seg[1:3, 2:6] = 1
+    xyz = np.zeros((R, C, 3))
+    xyz[..., 0] = 10.0
+    xyz[..., 1] = np.arange(C)[None, :] * 0.5
+    height = np.full((R, C), 2.25)
+    feats = segment_features(seg, 1, xyz, height, np.ones((R, C), bool), 0.3)
+    top90 = feats[3]
+    assert top90[1] == 2.3

@@ -60,7 +60,7 @@ class SimConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    scene: str = Field("urban", pattern="^(urban|forest)$")
+    scene: str = Field("urban", pattern="^(urban|forest|street)$")
     sensor: str = "hdl64"
     frames: int = Field(200, ge=1)
     seed: int = 0
@@ -112,12 +112,16 @@ class Simulator:
         self.sensor: SimSensor = make_sensor(config.sensor, config.lines_per_frame, config.clockwise)
         if config.scene == "urban":
             self.scene: Scene = urban_street(config.seed)
+        elif config.scene == "street":  # parked rows and driving cars
+            from data_tools.sim.street import street_scene
+
+            self.scene = street_scene(config.seed)
         else:
             duration = config.frames * self.sensor.period
             length = max(60.0, duration * (config.speed or 1.3) + 30.0)
             self.scene = forest_plot(config.seed, ForestParams(length=length))
         duration = config.frames * self.sensor.period + 0.5
-        if self.sensor.platform == "vehicle" and config.scene == "urban":
+        if self.sensor.platform == "vehicle" and config.scene in ("urban", "street"):
             self.trajectory: Trajectory = vehicle_trajectory(
                 self.scene,
                 duration,
@@ -128,7 +132,7 @@ class Simulator:
             )
         else:
             # a walker in the street keeps to the right sidewalk (5-8 m right of the centreline)
-            lateral = -5.95 if config.scene == "urban" else 0.0
+            lateral = self.scene.info.get("walk_lateral", -5.95 if config.scene == "urban" else 0.0)
             self.trajectory = walking_trajectory(
                 self.scene,
                 duration,
@@ -143,10 +147,13 @@ class Simulator:
         self.normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
         self.foliage = mesh.material == FOLIAGE
         moving = self.foliage if config.wind > 0 else np.zeros(mesh.n_triangles, bool)
+        self._move = getattr(self.scene, "move", None)  # vehicles driving in the scene (street)
+        if self._move is not None:
+            moving = moving | self.scene.moving_triangles()
         self._static, self._static_idx = _scene_mesh_to_o3d(mesh, ~moving)
         self._moving_idx = np.flatnonzero(moving)
-        if len(self._moving_idx):
-            vids = np.unique(mesh.triangles[self._moving_idx])
+        if config.wind > 0 and len(self._moving_idx):
+            vids = np.unique(mesh.triangles[np.flatnonzero(self.foliage)])
             self._wind_vids = vids
             rng = np.random.default_rng(config.seed + 7)
             inst = np.zeros(len(mesh.vertices), np.uint32)
@@ -166,9 +173,12 @@ class Simulator:
         mesh = self.scene.mesh
         verts = mesh.vertices.astype(np.float64).copy()
         a = self.config.wind
-        sway = a * np.sin(2 * np.pi * 0.4 * t + self._wind_phase)[:, None] * self._wind_dir
-        flutter = a * np.sin(2 * np.pi * 1.7 * t + 1.3 * self._wind_phase)[:, None] * self._wind_flutter
-        verts[self._wind_vids] += sway + flutter
+        if a > 0:
+            sway = a * np.sin(2 * np.pi * 0.4 * t + self._wind_phase)[:, None] * self._wind_dir
+            flutter = a * np.sin(2 * np.pi * 1.7 * t + 1.3 * self._wind_phase)[:, None] * self._wind_flutter
+            verts[self._wind_vids] += sway + flutter
+        if self._move is not None:
+            verts = self._move(verts, t)
         import open3d as o3d
 
         scene = o3d.t.geometry.RaycastingScene()

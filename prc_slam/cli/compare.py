@@ -164,6 +164,10 @@ def compare(
         print_table(class_table(run.prc, "PRC labels against the reference"))
     if run.online is not None and "per_class" in run.online:
         print_table(class_table(run.online, "online detectors against the reference"))
+        if "vehicle_by_range" in run.online:
+            from prc_slam.scoring import range_table
+
+            print_table(range_table(run.online["vehicle_by_range"], "vehicle instances and points by range"))
     if mapclass:
         from prc_slam.cli.mapclass import print_mapclass
         from prc_slam.jobs.mapclass import compare_mapclass

@@ -131,6 +131,16 @@ class SpinningCarParams:
     vegetation_step: float = 0.1
     vegetation_gap: float = 0.25
     hidden_floor: bool = True  # step 5's bottom taken above where the lowest beam passes (False: above the ground)
+    # m: step 4's column tops on the highest beam lower than top_height above the ground count as going on upward
+    # only for a segment whose tops there span less than top_width along the ring (0: always): near a sensor whose
+    # highest beam points little above the horizon (HDL-64: +2 deg) the field of view ends on a van's side (5 m
+    # out: 2.0 m up), which says nothing of what lies above; a trunk or a pole cut there spans less, and a facade
+    # cut above max_top is taller than any vehicle the detector takes
+    top_width: float = 1.0
+    top_height: float = 2.3
+    # step 4: a high return above a column top counts only when it continues the face upwards (steeper than
+    # 45 deg), not a street tree's crown over a parked van (False: any high return within the gate)
+    high_steep: bool = True
 
 
 @njit(cache=True, nogil=True)
@@ -166,7 +176,7 @@ def _d2(xyz, r0, c0, r1, c1):
 @njit(cache=True, nogil=True)
 def segment_candidates(
     cand, valid, high, xyz, rng, ring_step, alt, min_gate, gate_factor, max_gate, see_through, diagonal,
-    height, top_floor,
+    height, top_floor, top_width=0.0, steep=False, top_height=-np.inf,
 ):  # fmt: skip
     """Steps 3-4 on an image whose rows are beams in elevation order (lowest first).
 
@@ -219,19 +229,38 @@ def segment_candidates(
                     root_id[root] = n
                 seg[r, c] = root_id[root]
     high_touch, tops = outline_tops(
-        seg, n, valid, high, xyz, rng, alt, min_gate, gate_factor, max_gate, height, top_floor
-    )
+        seg, n, valid, high, xyz, rng, alt, min_gate, gate_factor, max_gate, height, top_floor, top_width, steep,
+        top_height,
+    )  # fmt: skip
     return seg, n, high_touch, tops
 
 
+#: m, range noise allowed in step 4's steepness test (``high_steep``)
+STEEP_SLACK = 0.1
+
+
 @njit(cache=True, nogil=True)
-def outline_tops(seg, n, valid, high, xyz, rng, alt, min_gate, gate_factor, max_gate, height, top_floor):
+def outline_tops(
+    seg, n, valid, high, xyz, rng, alt, min_gate, gate_factor, max_gate, height, top_floor,
+    top_width=0.0, steep=False, top_height=-np.inf,
+):  # fmt: skip
     """Step 4 per segment 1..n of ``seg`` (rows in elevation order): the number of its column
     tops at least ``top_floor`` above the ground whose next return up is ``high`` and within the
-    gate (or which lie on the highest beam), and the number of those column tops."""
+    gate (or which lie on the highest beam), and the number of those column tops. A top on the
+    highest beam under ``top_height`` above the ground counts only for a segment whose tops there
+    span less than ``top_width`` along the ring (``top_width`` > 0: a trunk or a pole going on out
+    of view; a vehicle cut by the field of view under a tall vehicle's height spans more). With
+    ``steep``, a high return counts only where it continues the face
+    upwards (it lies no farther out, horizontally, than it lies higher, give or take
+    :data:`STEEP_SLACK` of range noise: steeper than 45 deg), not a crown or an awning reaching
+    over the object."""
     R, C = seg.shape
     high_touch = np.zeros(n + 1, np.int64)
     tops = np.zeros(n + 1, np.int64)
+    at_top = np.zeros(n + 1, np.int64)  # tops on the highest beam, their column span and mean range
+    c_lo = np.full(n + 1, C, np.int64)
+    c_hi = np.full(n + 1, -1, np.int64)
+    r_sum = np.zeros(n + 1)
     for r in range(R):  # image order in memory (each column is read upwards from every slot)
         for c in range(C):
             k = seg[r, c]
@@ -249,11 +278,28 @@ def outline_tops(seg, n, valid, high, xyz, rng, alt, min_gate, gate_factor, max_
                 continue
             tops[k] += 1
             if up < 0 and r == R - 1:  # on the highest beam: the object may go on out of view
-                high_touch[k] += 1
+                if height[r, c] >= top_height or top_width <= 0.0:
+                    high_touch[k] += 1
+                    continue
+                at_top[k] += 1
+                c_lo[k] = min(c_lo[k], c)
+                c_hi[k] = max(c_hi[k], c)
+                r_sum[k] += rng[r, c]
             elif up >= 0 and high[up, c]:
                 g = max(min_gate, min(max_gate, gate_factor * rng[r, c] * (alt[up] - alt[r])))
                 if _d2(xyz, r, c, up, c) <= g * g:
+                    if steep:
+                        rho0 = np.sqrt(xyz[r, c, 0] ** 2 + xyz[r, c, 1] ** 2)
+                        rho1 = np.sqrt(xyz[up, c, 0] ** 2 + xyz[up, c, 1] ** 2)
+                        if abs(rho1 - rho0) > xyz[up, c, 2] - xyz[r, c, 2] + STEEP_SLACK:
+                            continue
                     high_touch[k] += 1
+    for k in range(1, n + 1):
+        if at_top[k] == 0:
+            continue
+        span = (r_sum[k] / at_top[k]) * (2.0 * np.pi / C) * (c_hi[k] - c_lo[k] + 1)
+        if span < top_width:
+            high_touch[k] += at_top[k]
     return high_touch, tops
 
 
@@ -400,7 +446,7 @@ def segment_features(
         for b in range(nh):
             acc += hh[k, b]
             if acc >= 0.9 * cnt[k]:
-                top90[k] = (b + 1) * 0.1
+                top90[k] = (b + 1) / 10.0  # the bin's upper edge, correctly rounded (2.3, not 2.3000000000000003)
                 break
     length = np.maximum(hi_u - lo_u, 0.0)
     width = np.maximum(hi_v - lo_v, 0.0)
@@ -728,8 +774,9 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
     g = len(groups)
     seg_g = relabel(seg_o, gid.astype(np.int32))
     ht_g, tops_g = outline_tops(
-        seg_g, g, valid, high, xyz, rng, alt, p.min_gate, p.gate_factor, p.max_gate, height, p.top_floor
-    )
+        seg_g, g, valid, high, xyz, rng, alt, p.min_gate, p.gate_factor, p.max_gate, height, p.top_floor,
+        p.top_width, p.high_steep, p.top_height,
+    )  # fmt: skip
     ok_g, _ = _judge(seg_g, g, ht_g, tops_g, xyz, height, valid, rng, gaps, vegetation, p, floor)
     # final ids: accepted groups first, then accepted segments outside an accepted group
     take_g = ok_g[gid] & multi
@@ -806,6 +853,7 @@ def detect_cars_spinning(
     seg_o, n, high_touch, tops = segment_candidates(
         cand, o_valid, high, o_xyz, rng, 2.0 * np.pi / cols, alt,
         p.min_gate, p.gate_factor, p.max_gate, p.see_through, int(p.diagonal), o_h, p.top_floor,
+        p.top_width, p.high_steep, p.top_height,
     )  # fmt: skip
     h_o = h_zero[by_elevation]
     veg_o = vegetation[by_elevation]
