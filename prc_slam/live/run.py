@@ -399,17 +399,17 @@ SWEEP_DTYPE = np.dtype(
 )  # fmt: skip
 
 
-def synthetic_sweep(rings: int = 32, cols: int = 1000, shift: float = 0.0) -> np.ndarray:
+def synthetic_sweep(rings: int = 32, cols: int = 1000, turn: float = 0.0) -> np.ndarray:
     """A decoded Velodyne sweep (velodyne-decoder's fields) of a street: ground 1.8 m below,
-    walls 8-14 m around; ``shift`` moves the sensor along x (m)."""
+    walls 8-14 m around; ``turn``: the sensor's yaw (rad)."""
     az = np.repeat(np.linspace(0.0, 2 * np.pi, cols, endpoint=False), rings)
+    wall = 11.0 + 3.0 * np.sin(3 * (az + turn))
     ring = np.tile(np.arange(rings), cols)
     el = np.radians(np.linspace(-30.0, 10.0, rings))[ring]
-    wall = 11.0 + 3.0 * np.sin(3 * az)
     down = np.where(el < 0, 1.8 / np.maximum(-np.sin(el), 1e-6), np.inf)
     r = np.minimum(wall / np.maximum(np.cos(el), 1e-6), down)
     pts = np.zeros(len(az), dtype=SWEEP_DTYPE)
-    pts["x"] = r * np.cos(el) * np.cos(az) - shift
+    pts["x"] = r * np.cos(el) * np.cos(az)
     pts["y"] = r * np.cos(el) * np.sin(az)
     pts["z"] = r * np.sin(el)
     pts["intensity"] = 50.0
@@ -430,7 +430,7 @@ def warm_up(config: Config, variant: str, online: bool) -> None:
     prc_warm_up()
     assembler = VelodyneAssembler("warm-up")
     assembler.setup("HDL32E")
-    scans = [assembler.scan_of(Sweep(i, 0.0, 100.0 + 0.1 * i, synthetic_sweep(shift=0.3 * i))) for i in range(4)]
+    scans = [assembler.scan_of(Sweep(i, 0.0, 100.0 + 0.1 * i, synthetic_sweep(turn=0.02 * i))) for i in range(4)]
     detector = None
     if online:
         from prc_slam.online import OnlineDetector
