@@ -198,6 +198,8 @@ def test_sigterm_stops_and_closes_every_output(capture, tmp_path):
                 break
         replay(capture, LOOPBACK, port)
         time.sleep(1.0)
+        children = Path(f"/proc/{proc.pid}/task/{proc.pid}/children")
+        kids = children.read_text().split() if children.exists() else []
         proc.send_signal(signal.SIGTERM)
         text, _ = proc.communicate(timeout=30)
     finally:
@@ -205,6 +207,8 @@ def test_sigterm_stops_and_closes_every_output(capture, tmp_path):
             proc.kill()
             proc.wait()
     assert proc.returncode == 0, text
+    time.sleep(0.5)
+    assert not [k for k in kids if Path(f"/proc/{k}").exists()]  # the receiving process ended too
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["ended_by"] == "stopped" and m["frames"] == m["sweeps_in"] >= 5
     assert (tmp_path / "r.rrd").stat().st_size > 0 and not (tmp_path / "r.partial.rrd").exists()

@@ -499,6 +499,9 @@ class _ChildLog(logging.Handler):
 
 def _receiver_main(host: str, port: int, name: str, model: str | None, conn: Any, stop: Any) -> None:
     """The receiving process: listens, decodes, sends whole sweeps and counts to the parent."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops this process
     conn = _LockedConn(conn)
     log.handlers[:] = [_ChildLog(conn)]
     log.setLevel(logging.INFO)
@@ -524,15 +527,23 @@ def _receiver_main(host: str, port: int, name: str, model: str | None, conn: Any
 def _serve_commands(rx: UdpReceiver, conn: Any) -> None:
     """The parent's requests to the child: ``flush`` (the stream has ended) and heartbeats of counts."""
     while not rx.stop_event.is_set():
-        if conn.poll(0.25):
-            try:
+        try:
+            if conn.poll(0.25):
                 msg = conn.recv()
-            except (EOFError, OSError):
-                return
+            else:
+                msg = None
+        except (EOFError, OSError):  # the parent has gone: no one to receive for
+            rx.stop_event.set()
+            return
+        if msg is not None:
             if msg == "flush":
                 done = rx.flush()
                 conn.send(("flushed", done))
-        conn.send(("stats", _stats_of(rx.stats), None))
+        try:
+            conn.send(("stats", _stats_of(rx.stats), None))
+        except (EOFError, OSError):
+            rx.stop_event.set()
+            return
 
 
 class ProcessReceiver(threading.Thread):
