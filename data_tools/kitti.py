@@ -17,7 +17,7 @@ import numpy as np
 
 from data_tools.errors import DataError
 from data_tools.organize import Organizer
-from data_tools.sequence import SequenceBase
+from data_tools.sequence import ORGANISER_OPTIONS, Reader, SequenceBase, organiser_hints
 from data_tools.trajectory_io import read_kitti_poses, read_times, warn_time_gaps
 from data_tools.units import warn_unless_metres
 from prc_slam import labels as L
@@ -263,3 +263,15 @@ class KittiSequence(SequenceBase):
             gt_point_instance=gt_inst,
             gt_pose=None if self.poses is None else self.poses[i],
         )
+
+
+def detect(path: Path) -> bool:
+    """A KITTI sequence: a directory with ``velodyne/``."""
+    return path.is_dir() and (path / "velodyne").is_dir()
+
+
+def _open(path: Path, options: dict[str, object]) -> KittiSequence:
+    return KittiSequence(path, **organiser_hints(options))
+
+
+READER = Reader("kitti", ORGANISER_OPTIONS, detect, _open)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.sequence import SequenceBase
+from data_tools.sequence import Reader, SequenceBase
 from prc_slam.scan import Scan, SpinningSensor
 
 log = logging.getLogger("prc_slam.readers")
@@ -214,3 +214,16 @@ class OusterSequence(SequenceBase):
             self.files[j].name,
             table(ref),
         )
+
+
+def detect(path: Path) -> bool:
+    """Decoded Ouster sweeps: an ``.npz`` file, or a directory holding some."""
+    return any(path.glob("*.npz")) if path.is_dir() else path.suffix == ".npz"
+
+
+READER = Reader(
+    "ouster",
+    ("destaggered",),
+    detect,
+    lambda path, options: OusterSequence(path, destaggered=bool(options.get("destaggered", True))),
+)

@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from data_tools.errors import DataError
-from data_tools.sequence import SequenceBase
+from data_tools.sequence import ORGANISER_OPTIONS, Reader, SequenceBase, organiser_hints
 from data_tools.units import warn_unless_metres
 from prc_slam.scan import Scan
 
@@ -727,3 +727,23 @@ class SweepFolder(SequenceBase):
         return self.organizer.scan(
             xyz, ring=ring, times=times, intensity=intensity, name=path.stem, source=src, frame_time=frame_time
         )
+
+
+def _open(path: Path, options: dict[str, object]) -> SweepFolder:
+    return SweepFolder(path, **organiser_hints(options))
+
+
+def detect(path: Path) -> bool:
+    """Sweep files: a ``.pcd`` / ``.ply`` / ``.bin`` file, or a directory holding one."""
+    if path.is_dir():
+        return any(f.suffix.lower() in SWEEP_SUFFIXES for f in path.iterdir())
+    return path.suffix.lower() in SWEEP_SUFFIXES
+
+
+def detect_las(path: Path) -> bool:
+    """A ``.las`` / ``.laz`` file (read as one sweep)."""
+    return not path.is_dir() and path.suffix.lower() in (".las", ".laz")
+
+
+READER = Reader("pcd", ORGANISER_OPTIONS, detect, _open)
+LAS_READER = Reader("las", ORGANISER_OPTIONS, detect_las, _open)

@@ -246,7 +246,7 @@ def generate_inputs(root: Path) -> dict[str, Path]:
             out[f"{name}_{kind}"] = path
     pcap_dir = root / "sim_pcap"
     cmd = [
-        str(ROOT / ".venv" / "bin" / "prc-slam"), "simulate", "--out", str(pcap_dir), "--sensor", "vlp16",
+        str(Path(sys.executable).parent / "prc-slam"), "simulate", "--out", str(pcap_dir), "--sensor", "vlp16",
         "--frames", "3", "--seed", "2", "--pcap", str(root / "vlp16.pcap"),
     ]  # fmt: skip
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
@@ -288,36 +288,53 @@ def file_digest(path: Path) -> dict[str, str]:
     }
 
 
-def record(out: Path) -> None:
+def record(out: Path, shared: Path = SHARED) -> None:
     logging.disable(logging.WARNING)
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     snap: dict[str, Any] = {"inputs": {}, "written": {}, "errors": {}}
-    if SHARED.is_dir():
-        kitti = SHARED / "kitti00"
+    if shared.is_dir():
+        kitti = shared / "kitti00"
         snap["inputs"]["kitti00"] = dataset_record(kitti)
-        for p in sorted((SHARED / "ouster" / "pcaps").glob("*.pcap")):
+        for p in sorted((shared / "ouster" / "pcaps").glob("*.pcap")):
             snap["inputs"][f"ouster/{p.name}"] = dataset_record(p)
-        for p in sorted((SHARED / "ouster" / "decoded").glob("*.npz")):
+        for p in sorted((shared / "ouster" / "decoded").glob("*.npz")):
             snap["inputs"][f"ouster/{p.name}"] = dataset_record(p)
             snap["inputs"][f"ouster/{p.name}/staggered"] = dataset_record(p, destaggered=False)
-        snap["inputs"]["ouster/decoded"] = dataset_record(SHARED / "ouster" / "decoded", frames=2)
-        for p in sorted((SHARED / "multisensor").glob("*.pcd")):
+        snap["inputs"]["ouster/decoded"] = dataset_record(shared / "ouster" / "decoded", frames=2)
+        for p in sorted((shared / "multisensor").glob("*.pcd")):
             snap["inputs"][f"multisensor/{p.name}"] = dataset_record(p)
         snap["inputs"]["kitti00/order"] = dataset_record(kitti, frames=2, organize_method="order")
         snap["inputs"]["kitti00/beams"] = dataset_record(kitti, frames=1, organize_method="beams")
-        vlp16 = SHARED / "multisensor" / "velodyne_vlp16.pcd"
+        vlp16 = shared / "multisensor" / "velodyne_vlp16.pcd"
         snap["inputs"]["multisensor/velodyne_vlp16.pcd/beams"] = dataset_record(vlp16, organize_method="beams")
     else:
-        print(f"{SHARED}: absent; the shared data is not recorded", file=sys.stderr)
+        print(f"{shared}: absent; the shared data is not recorded", file=sys.stderr)
     generated = generate_inputs(out / "inputs")
     for name, path in generated.items():
         snap["inputs"][f"generated/{name}"] = dataset_record(path)
         snap["written"][name] = file_digest(path)
     snap["inputs"]["generated/pcd_ring/fixed_cols"] = dataset_record(generated["pcd_ring"], rows=16, cols=1800)
+    from data_tools import open_dataset
     from data_tools.datasets import detect_format
     from data_tools.errors import DataError
 
+    kitti_like = generated["kitti_bin"]
+    for name, fmt, options in (  # options a format does not take, formats forced or unknown
+        ("topic_on_pcd", None, {"topic": "/points"}),
+        ("model_on_pcd", None, {"model": "vlp16"}),
+        ("staggered_on_pcd", None, {"destaggered": False}),
+        ("rows_on_sim", "sim", {"rows": 16}),
+        ("unknown_format", "nope", {}),
+        ("pcd_as_kitti", "kitti", {}),
+        ("pcd_as_bin", "bin", {"cols": 1800, "organize_method": "beams"}),
+        ("pcd_as_ouster", "ouster", {}),
+    ):
+        try:
+            open_dataset(kitti_like, fmt, **options)
+            snap["errors"][name] = "opened"
+        except DataError as exc:
+            snap["errors"][name] = {"error": str(exc).replace(str(kitti_like), "<path>")}
     for name, path in bad_inputs(out / "bad").items():
         try:
             snap["errors"][name] = {"format": detect_format(path)}
@@ -362,13 +379,15 @@ def compare(a: Path, b: Path) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="cmd", required=True)
-    sub.add_parser("record").add_argument("out", type=Path)
+    rec = sub.add_parser("record")
+    rec.add_argument("out", type=Path)
+    rec.add_argument("--data", type=Path, default=SHARED, help="the shared data (default: ../shared/data)")
     cmp = sub.add_parser("compare")
     cmp.add_argument("a", type=Path)
     cmp.add_argument("b", type=Path)
     args = parser.parse_args(argv)
     if args.cmd == "record":
-        record(args.out)
+        record(args.out, args.data)
         return 0
     return compare(args.a, args.b)
 
