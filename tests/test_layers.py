@@ -8,8 +8,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: application modules of prc_slam: they may import everything below them
-APPLICATION = ("prc_slam.jobs", "prc_slam.cli", "prc_slam.preprocess", "prc_slam.benchmark")
+#: application modules of prc_slam (commands, their jobs, the live receiver that opens sockets and
+#: readers): they may import everything below them
+APPLICATION = ("prc_slam.jobs", "prc_slam.live", "prc_slam.cli", "prc_slam.preprocess", "prc_slam.benchmark")
 #: the console entry point, above everything
 ENTRY = ("prc_slam.launcher",)
 VIEWER = ("prc_slam.viz",)
