@@ -419,3 +419,31 @@ def test_top90_is_the_bin_edge_correctly_rounded():
     feats = segment_features(seg, 1, xyz, height, np.ones((R, C), bool), 0.3)
     top90 = feats[3]
     assert top90[1] == 2.3
+
+
+def test_column_ground_takes_the_lowest_wide_mode():
+    """A 16-beam sweep (+-15 deg) whose lowest beam meets a wall 3 m away on 60 of 100 columns and
+    the road on 40: the columns' first returns pile up 0.8 m under the sensor on the wall, which was
+    the main mode and so the ground height (the walls' feet were ground, the road was not; a walker
+    on the simulated street's sidewalk: ground recall 0.00). The road's mode holds 40 % of them, over
+    ``min_share``, and is the lowest: it is the ground."""
+    from prc_slam.online.coarse import scan_lines
+    from prc_slam.online.spinning import column_ground
+
+    model = SpinningSensor.create(np.radians(np.linspace(15.0, -15.0, 16)), 100)
+    alt = model.altitude
+    az = 2 * np.pi * np.arange(100) / 100
+    wall = np.arange(100) < 60
+    rho = np.where(
+        wall[None, :], 3.0, np.where(alt[:, None] < 0, MOUNT / np.tan(-np.minimum(alt, -1e-6))[:, None], 0.0)
+    )
+    z = np.where(wall[None, :], rho * np.tan(alt)[:, None], -MOUNT)
+    valid = rho > 0
+    xyz = np.stack([rho * np.cos(az)[None, :], rho * np.sin(az)[None, :], z], axis=-1) * valid[..., None]
+    ranges = np.where(valid, np.linalg.norm(xyz, axis=-1), 0.0).astype(np.float32)
+    scan = Scan(ranges, model, xyz=xyz.astype(np.float32))
+    ground, _, zd = column_ground(scan, scan_lines(scan))
+    assert zd == pytest.approx(-MOUNT, abs=0.05)
+    assert ground[valid & ~wall[None, :]].all() and not ground[:, wall].any()
+    _, _, zd_main = column_ground(scan, scan_lines(scan), min_share=1.0)  # the largest mode only, as before
+    assert zd_main == pytest.approx(-0.80, abs=0.05)

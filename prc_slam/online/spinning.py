@@ -523,13 +523,21 @@ def _column_ground(xyz, valid, lines, zd, tol, slope, max_step, eps):
 
 
 def column_ground(
-    scan: Scan, lines: np.ndarray, rel_tolerance: float = 0.10, max_slope: float = 10.0, max_step: float = 0.2
+    scan: Scan,
+    lines: np.ndarray,
+    rel_tolerance: float = 0.10,
+    max_slope: float = 10.0,
+    max_step: float = 0.2,
+    min_share: float = 0.3,
 ):
     """Ground along the column profile for sensors whose columns are too short for Sec. 5 part
     (a) (a 16-beam column holds fewer than its 10 consecutive horizontal returns).
 
     Sec. 5 part (b) with one estimate per column: ``z_i`` is the column's first return, ``z_d``
-    the main mean-shift mode of the ``z_i`` (0.2 m bandwidth); a column's first return within the
+    the lowest mean-shift mode of the ``z_i`` (0.2 m bandwidth) that holds at least ``min_share`` of
+    them (the ground is the lowest wide surface; the main mode was the wrong one where a 16-beam
+    sensor's lowest beam meets parked cars and facades before the ground: a walker on the simulated
+    street's sidewalk, z_d on the car sides 0.9 m up, ground recall 0.00); a column's first return within the
     paper's 10 % of ``|z_d|`` starts its ground, and each later return continues it when it lies
     farther out and at most ``max_slope`` (plus 5 cm of noise), and never more than ``max_step``
     (Sec. 6's tallest curb), above or below the last ground return: the line angles of Sec. 3
@@ -549,8 +557,9 @@ def column_ground(
     if not has.any():
         return np.zeros(scan.shape, bool), np.zeros(len(lines)), None
     first = lines[has, np.argmax(v[has], axis=1)]
-    modes, _ = mean_shift_modes(xyz[first, 2], 0.2)
-    zd = float(modes[0])
+    modes, counts = mean_shift_modes(xyz[first, 2], 0.2)
+    wide = modes[counts >= min_share * counts.sum()]
+    zd = float(wide.min()) if len(wide) else float(modes[0])
     ground, height = _column_ground(
         xyz, valid, lines, zd, rel_tolerance * abs(zd), np.tan(np.radians(max_slope)), max_step, 0.05
     )
