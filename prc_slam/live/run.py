@@ -31,7 +31,7 @@ from prc_slam.pipeline import FrameError, NextFrame, Pipeline, PipelineFrame, Pi
 log = logging.getLogger("prc_slam")
 
 STAGES = ("organize", "prc", "online", "filter", "icp", "sinks")
-#: resident memory is recorded after every this many frames (metrics ``rss_mb``)
+#: resident memory is recorded after every this many sweeps of the source (metrics ``rss_mb``)
 RSS_EVERY = 50
 
 
@@ -130,6 +130,7 @@ class LiveSweeps(Iterator[Any]):
         scan.meta["live_received"] = sweep.received
         scan.meta["live_lost_packets"] = sweep.lost_packets
         scan.meta["live_flushed"] = sweep.flushed
+        scan.meta["live_index"] = sweep.index
         return scan
 
 
@@ -146,7 +147,8 @@ class Status:
         self.stage_ms: dict[str, list[float]] = {k: [] for k in STAGES}
         self.lost_per_frame: list[int] = []
         self.frames = 0
-        self.rss_mb: dict[str, float] = {}  # resident memory (MB) after every RSS_EVERY-th frame
+        self.rss_mb: dict[str, float] = {}  # resident memory (MB) after the sweeps 50, 100, ... of the source
+        self.next_rss = RSS_EVERY
         now = time.perf_counter()
         self._next_tty, self._next_log = now + every, now + log_every
 
@@ -203,8 +205,10 @@ class TimedSinks:
         if received is not None:
             st.latency.append(now - received)
         st.frames += 1
-        if st.frames % RSS_EVERY == 0:
-            st.rss_mb[str(st.frames)] = rss_mb()
+        index = int(step.scan.meta.get("live_index", st.frames - 1))  # the sweep's number in the source
+        if index + 1 >= st.next_rss:
+            st.rss_mb[str(index + 1)] = rss_mb()
+            st.next_rss = (index + 1) // RSS_EVERY * RSS_EVERY + RSS_EVERY
         if not step.scan.meta.get("live_flushed"):
             st.out_times.append(now)
         st.lost_per_frame.append(int(step.scan.meta.get("live_lost_packets", 0)))
