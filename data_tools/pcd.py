@@ -23,8 +23,8 @@ import logging
 import re
 from pathlib import Path
 
+import lzf
 import numpy as np
-from numba import njit
 
 from data_tools.errors import DataError
 from data_tools.sequence import ORGANISER_OPTIONS, Reader, SequenceBase, organiser_hints
@@ -53,54 +53,6 @@ _PLY_TYPES = {
 
 
 # ------------------------------------------------------------------------------------ PCD
-
-
-@njit(cache=True)
-def _lzf_decompress(src, out_size):  # pragma: no cover - numba
-    """LZF decompression (liblzf's format, as PCL writes ``binary_compressed``); -1 on corrupt data."""
-    out = np.empty(out_size, np.uint8)
-    ip = 0
-    op = 0
-    n = src.shape[0]
-    while ip < n:
-        ctrl = np.int64(src[ip])
-        ip += 1
-        if ctrl < 32:  # literal run of ctrl + 1 bytes
-            ln = ctrl + 1
-            if op + ln > out_size or ip + ln > n:
-                return out, -1
-            for k in range(ln):
-                out[op + k] = src[ip + k]
-            op += ln
-            ip += ln
-        else:  # back reference
-            ln = ctrl >> 5
-            if ln == 7:
-                if ip >= n:
-                    return out, -1
-                ln += np.int64(src[ip])
-                ip += 1
-            if ip >= n:
-                return out, -1
-            ref = op - ((ctrl & 0x1F) << 8) - 1 - np.int64(src[ip])
-            ip += 1
-            ln += 2
-            if ref < 0 or op + ln > out_size:
-                return out, -1
-            for k in range(ln):  # byte by byte: the reference may overlap the output
-                out[op + k] = out[ref + k]
-            op += ln
-    return out, op
-
-
-def lzf_compress_literal(data: bytes) -> bytes:
-    """LZF stream of literal runs only (valid LZF, no compression): for tests and as a fallback."""
-    out = bytearray()
-    for i in range(0, len(data), 32):
-        chunk = data[i : i + 32]
-        out.append(len(chunk) - 1)
-        out += chunk
-    return bytes(out)
 
 
 def _parse_pcd_header(path: Path, raw: bytes) -> tuple[dict[str, list[str]], int]:
@@ -220,7 +172,12 @@ def _pcd_compressed(path: Path, body: bytes, rec: np.dtype, n: int) -> np.ndarra
         raise DataError(f"{path}: binary_compressed holds {usize} bytes, {n} points need {n * rec.itemsize}")
     if len(body) < 8 + csize:
         raise DataError(f"{path}: truncated: compressed data of {csize} bytes, file holds {len(body) - 8}")
-    buf, got = _lzf_decompress(np.frombuffer(body, np.uint8, count=int(csize), offset=8), int(usize))
+    packed = body[8 : 8 + int(csize)]
+    try:  # liblzf (python-neo-lzf, as pypcd4): None when the data would overflow ``usize``
+        buf = lzf.decompress(packed, int(usize)) if packed else b""
+    except ValueError:
+        buf = None
+    got = -1 if buf is None else len(buf)
     if got != usize:
         raise DataError(f"{path}: corrupt binary_compressed data (LZF decoded {got} of {usize} bytes)")
     # structure of arrays: each field's values for all points, one field after the other
@@ -228,9 +185,8 @@ def _pcd_compressed(path: Path, body: bytes, rec: np.dtype, n: int) -> np.ndarra
     off = 0
     for name in rec.names:
         sub = rec[name]
-        nbytes = n * sub.itemsize
-        out[name] = np.frombuffer(buf[off : off + nbytes].tobytes(), dtype=sub).reshape(out[name].shape)
-        off += nbytes
+        out[name] = np.frombuffer(buf, dtype=sub, count=n, offset=off).reshape(out[name].shape)
+        off += n * sub.itemsize
     return out
 
 

@@ -141,13 +141,11 @@ def _write_ascii_pcd(path: Path, fields: dict[str, np.ndarray]) -> None:
 
 
 def _write_compressed_pcd(path: Path, fields: dict[str, np.ndarray]) -> None:
-    from data_tools.pcd import lzf_compress_literal
-
     names = list(fields)
     types = ["F" if fields[k].dtype.kind == "f" else ("U" if fields[k].dtype.kind == "u" else "I") for k in names]
     n = len(fields[names[0]])
     raw = b"".join(np.ascontiguousarray(fields[k]).tobytes() for k in names)
-    comp = lzf_compress_literal(raw)
+    comp = b"".join(bytes([len(raw[i : i + 32]) - 1]) + raw[i : i + 32] for i in range(0, len(raw), 32))  # LZF literals
     header = (
         f"VERSION 0.7\nFIELDS {' '.join(names)}\nSIZE {' '.join(str(fields[k].dtype.itemsize) for k in names)}\n"
         f"TYPE {' '.join(types)}\nCOUNT {' '.join('1' for _ in names)}\nWIDTH {n}\nHEIGHT 1\n"
