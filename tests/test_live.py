@@ -256,3 +256,31 @@ def test_ouster_packets_labelled_as_offline(tmp_path):
     want = np.fromfile(tmp_path / "offline" / "000000.label", np.uint32)
     for name in ("000000.label", "000001.label"):
         assert np.array_equal(np.fromfile(tmp_path / "live" / name, np.uint32), want)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["hesai://127.0.0.1"], "unknown scheme 'hesai'"),
+        (["velodyne://127.0.0.1:99999"], "port 99999 out of range"),
+        (["ouster://127.0.0.1"], "--meta"),
+        (["velodyne://127.0.0.1:9", "--out", "x.bag"], "--out x.bag"),
+        (["no-such-recording"], "no such file"),
+    ],
+)
+def test_cli_errors_are_one_line(args, message):
+    from typer.testing import CliRunner
+
+    from prc_slam.cli import app
+
+    res = CliRunner().invoke(app, ["live", *args])
+    assert res.exit_code == 2
+    assert message in res.output and "Traceback" not in res.output
+
+
+def test_port_in_use_is_named():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((LOOPBACK, 0))
+        port = s.getsockname()[1]
+        with pytest.raises(OSError, match=f"cannot listen on 127.0.0.1:{port}"):
+            run_live(Source("velodyne", LOOPBACK, port), config(), LiveOptions(timeout=0.5, warm_up=False))

@@ -277,7 +277,6 @@ class UdpReceiver(threading.Thread):
     def bind(self) -> None:
         """Open and bind the socket (an OSError names the address)."""
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         for opt in (33, socket.SO_RCVBUF):  # SO_RCVBUFFORCE (root), else up to rmem_max
             try:
                 sock.setsockopt(socket.SOL_SOCKET, opt, 32 * 2**20)
