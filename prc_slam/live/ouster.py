@@ -1,14 +1,15 @@
 """Ouster lidar packets on the wire → whole sweeps, decoded with ``ouster-sdk`` from the sensor's
 metadata json (``--meta``).
 
-ouster-sdk 1.0's own live sources (``ouster.sdk.sensor.SensorPacketSource`` / ``Sensor``) are
-built around a sensor they reach through its HTTP API (to read or set its configuration), which
-a replayed capture on loopback has not. So the packets are received here (one UDP socket, as
-for Velodyne) and decoded with the SDK's ``PacketFormat`` and ``FrameBatcher`` from the
-metadata, exactly as the offline reader (:class:`data_tools.ouster_pcap.OusterPcapSequence`)
-decodes a capture: a sweep is a run of lidar packets of one frame id (a new frame id, or the
-measurement ids starting again, closes it), batched into a fresh ``LidarFrame``, and turned into
-a Scan by the offline reader's own code.
+ouster-sdk 1.0's own live source (``SensorPacketSource`` over a ``Sensor``) talks to the sensor's
+HTTP API unless it is given the metadata; given it, it opens the ports without the API, but it
+delivered no packet of a loopback replay of the shared captures before its timeout
+(``ClientTimeout``), and it listens on the sensor's configured ports only. So the packets are
+received here (one UDP socket, any port, as for Velodyne) and decoded with the SDK's
+``PacketFormat`` and ``FrameBatcher`` from the metadata, exactly as the offline reader
+(:class:`data_tools.ouster_pcap.OusterPcapSequence`) decodes a capture: a sweep is a run of lidar
+packets of one frame id (a new frame id, or the measurement ids starting again, closes it),
+batched into a fresh ``LidarFrame``, and turned into a Scan by the offline reader's own code.
 """
 
 from __future__ import annotations
