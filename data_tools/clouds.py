@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.laz import laz_backend
+from data_tools.laz import laz_backend, open_las  # noqa: F401 (laz_backend: importable from here too)
 
 CLOUD_SUFFIXES = (".las", ".laz", ".ply", ".pcd", ".npy")
 #: a horizontal extent below this (in the file's units) with a vertical one 100 times larger,
@@ -165,17 +165,9 @@ def cloud_size(path: str | Path) -> int:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in (".las", ".laz"):
-        import laspy
-
-        backend = laz_backend(path)
-        try:
-            with laspy.open(path, laz_backend=backend) as f:
-                check_record_count(path, f.header)
-                return int(f.header.point_count)
-        except DataError:
-            raise
-        except (laspy.LaspyException, ValueError, OSError, RuntimeError) as e:  # lazrs errors are RuntimeErrors
-            raise DataError(f"{path}: not a readable LAS file ({e})") from e
+        with open_las(path) as f:
+            check_record_count(path, f.header)
+            return int(f.header.point_count)
     return sum(len(c) for c in cloud_chunks(path))
 
 
@@ -192,31 +184,23 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
     if suffix not in (*CLOUD_SUFFIXES, ".npz"):
         raise DataError(f"{path}: unknown cloud format {suffix!r}; use one of {', '.join(CLOUD_SUFFIXES)}, .npz")
     if suffix in (".las", ".laz"):
-        import laspy
-
-        backend = laz_backend(path)
-        try:
-            with laspy.open(path, laz_backend=backend) as f:
-                expected = int(f.header.point_count)
-                check_record_count(path, f.header)
-                if expected:
-                    check_metric(path, f.header.mins, f.header.maxs)
-                    scale = float(np.max(f.header.scales))
-                    if scale > COARSE_SCALE and str(path) not in _warned_coarse:
-                        _warned_coarse.add(str(path))  # once per file (the cloud may be read twice)
-                        log.warning(
-                            "%s: coordinates are quantised to %g (the LAS scale): structure finer than that is lost",
-                            path,
-                            scale,
-                        )
-                seen = 0
-                for pts in f.chunk_iterator(chunk):
-                    seen += len(pts)
-                    yield np.column_stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)])
-        except DataError:
-            raise
-        except (laspy.LaspyException, ValueError, OSError, RuntimeError) as e:  # lazrs errors are RuntimeErrors
-            raise DataError(f"{path}: not a readable LAS file ({e})") from e
+        with open_las(path) as f:
+            expected = int(f.header.point_count)
+            check_record_count(path, f.header)
+            if expected:
+                check_metric(path, f.header.mins, f.header.maxs)
+                scale = float(np.max(f.header.scales))
+                if scale > COARSE_SCALE and str(path) not in _warned_coarse:
+                    _warned_coarse.add(str(path))  # once per file (the cloud may be read twice)
+                    log.warning(
+                        "%s: coordinates are quantised to %g (the LAS scale): structure finer than that is lost",
+                        path,
+                        scale,
+                    )
+            seen = 0
+            for pts in f.chunk_iterator(chunk):
+                seen += len(pts)
+                yield np.column_stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)])
         if seen != expected:
             raise DataError(f"{path}: header announces {expected} points, file holds {seen} (truncated?)")
         return
@@ -265,13 +249,8 @@ def cloud_crs(path: str | Path) -> list:
     path = Path(path)
     if path.suffix.lower() not in (".las", ".laz"):
         return []
-    import laspy
-
-    try:
-        with laspy.open(path, laz_backend=laz_backend(path)) as f:
-            vlrs = list(f.header.vlrs)
-    except (laspy.LaspyException, ValueError, OSError, RuntimeError) as exc:  # lazrs errors are RuntimeErrors
-        raise DataError(f"{path}: not a readable LAS file ({exc})") from exc
+    with open_las(path) as f:
+        vlrs = list(f.header.vlrs)
     return [v for v in vlrs if type(v).__name__ in CRS_VLRS]
 
 
@@ -282,13 +261,8 @@ def cloud_grid(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
     path = Path(path)
     if path.suffix.lower() not in (".las", ".laz"):
         return None
-    import laspy
-
-    try:
-        with laspy.open(path, laz_backend=laz_backend(path)) as f:
-            return np.array(f.header.scales, np.float64), np.array(f.header.offsets, np.float64)
-    except (laspy.LaspyException, ValueError, OSError, RuntimeError) as exc:  # lazrs errors are RuntimeErrors
-        raise DataError(f"{path}: not a readable LAS file ({exc})") from exc
+    with open_las(path) as f:
+        return np.array(f.header.scales, np.float64), np.array(f.header.offsets, np.float64)
 
 
 def cloud_classes(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None] | None:
@@ -299,32 +273,24 @@ def cloud_classes(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.n
     path = Path(path)
     if path.suffix.lower() not in (".las", ".laz"):
         return None
-    import laspy
-
-    backend = laz_backend(path)
-    try:  # chunk by chunk, the three dimensions only (laspy.read held every dimension of every point)
-        with laspy.open(path, laz_backend=backend) as f:
-            check_record_count(path, f.header)
-            n = int(f.header.point_count)
-            names = set(f.header.point_format.dimension_names)
-            codes = np.zeros(n, np.uint8)
-            inst = np.zeros(n, np.uint32) if "instance" in names else None
-            withheld = np.zeros(n, bool) if "withheld" in names else None
-            start = 0
-            for pts in f.chunk_iterator(2_000_000):
-                stop = start + len(pts)
-                if stop > n:
-                    raise DataError(f"{path}: header announces {n} points, the file holds more")
-                codes[start:stop] = np.asarray(pts.classification)
-                if inst is not None:
-                    inst[start:stop] = np.asarray(pts["instance"])
-                if withheld is not None:
-                    withheld[start:stop] = np.asarray(pts.withheld, bool)
-                start = stop
-    except DataError:
-        raise
-    except (laspy.LaspyException, ValueError, OSError, RuntimeError) as exc:  # lazrs errors are RuntimeErrors
-        raise DataError(f"{path}: not a readable LAS file ({exc})") from exc
+    with open_las(path) as f:  # chunk by chunk, the three dimensions only (laspy.read held every dimension)
+        check_record_count(path, f.header)
+        n = int(f.header.point_count)
+        names = set(f.header.point_format.dimension_names)
+        codes = np.zeros(n, np.uint8)
+        inst = np.zeros(n, np.uint32) if "instance" in names else None
+        withheld = np.zeros(n, bool) if "withheld" in names else None
+        start = 0
+        for pts in f.chunk_iterator(2_000_000):
+            stop = start + len(pts)
+            if stop > n:
+                raise DataError(f"{path}: header announces {n} points, the file holds more")
+            codes[start:stop] = np.asarray(pts.classification)
+            if inst is not None:
+                inst[start:stop] = np.asarray(pts["instance"])
+            if withheld is not None:
+                withheld[start:stop] = np.asarray(pts.withheld, bool)
+            start = stop
     if start != n:
         raise DataError(f"{path}: header announces {n} points, file holds {start} (truncated?)")
     if not np.isin(codes, (0, 1), invert=True).any():
