@@ -152,7 +152,10 @@ def test_when_every_variant_is_lost_the_report_and_console_lead_with_it(sparse_w
     """One sweep in 40 (keyframes 4 m apart): the three variants part from frame 2 on and each
     ends 1.8-7 m off; before, each was 'ok (5 of 5 frames)' and nothing said the run was lost."""
     out = tmp_path / "cmp"
-    args = "--variants raw,prc,prc+classaware --stride 40".split()
+    # class-aware matching on every sweep: a walk without trunks would otherwise be registered as
+    # prc registers it, and two copies of one registration agree with each other
+    (tmp_path / "c.yaml").write_text("classaware:\n  fallback: false\n")
+    args = f"--variants raw,prc,prc+classaware --stride 40 --config {tmp_path / 'c.yaml'}".split()
     res = CliRunner().invoke(app, ["compare", str(sparse_walk), *args, "--out", str(out)])
     assert res.exit_code == 0, res.output
     metrics = json.loads((out / "metrics.json").read_text())

@@ -20,7 +20,7 @@ from prc_slam.odometry.classaware import (
     icp,
 )
 from prc_slam.odometry.compare import run_compare
-from prc_slam.odometry.kiss import OdometryConfig
+from prc_slam.odometry.kiss import KissOdometry, OdometryConfig
 from prc_slam.testing import assert_trajectory_close
 
 TRUNK, STRUCTURE, GROUND = (GROUP_NAMES.index(g) for g in ("trunk", "structure", "ground"))
@@ -121,6 +121,50 @@ def test_zero_weight_leaves_a_group_out():
     odo.register(pts, None, codes)
     odo.register(pts, None, codes)
     assert odo.correspondences[-1][TRUNK] == 0 and odo.correspondences[-1][GROUND] > 0
+
+
+def _moves(pts: np.ndarray, n: int) -> list[np.ndarray]:
+    """The room seen from a sensor turning 1 deg and moving 0.3 m along x per frame."""
+    out = []
+    for i in range(n):
+        c, s = np.cos(np.radians(1.0 * i)), np.sin(np.radians(1.0 * i))
+        pose = np.array([[c, -s, 0, 0.3 * i], [s, c, 0, 0.0], [0, 0, 1, 0.0], [0, 0, 0, 1.0]])
+        out.append((pts - pose[:3, 3]) @ pose[:3, :3])
+    return out
+
+
+def test_sweep_without_anchors_is_registered_as_the_prc_variant_does():
+    """No trunk in the sweep: nothing anchors the class-aware matching, and the sweep is
+    registered by KISS-ICP on the same points (the prc variant's registration), kept in step."""
+    pts, codes = _room(np.random.default_rng(4))
+    room = codes != L.TRUNK
+    pts, codes = pts[room], codes[room]
+    config = OdometryConfig(deskew=False)
+    odo, prc = ClassAwareOdometry(config), KissOdometry(config)
+    for i, frame in enumerate(_moves(pts, 4)):
+        a = odo.register(frame, None, codes, frame_time=0.1 * i)
+        b = prc.register(frame, None, None, frame_time=0.1 * i)
+        np.testing.assert_allclose(a, b, atol=1e-6)
+    assert odo.classaware_frames == [] and odo.anchor_ratio == [None, 0.0, 0.0, 0.0]
+    assert np.linalg.norm(a[:3, 3] - [0.9, 0.0, 0.0]) < 0.02
+
+
+@pytest.mark.parametrize(("stems", "anchored"), [([(5, 3)], False), ([(5, 3), (-4, -6), (8, -9), (-7, 7)], True)])
+def test_one_stem_leaves_the_yaw_free_several_anchor_the_sweep(stems, anchored):
+    rng = np.random.default_rng(5)
+    pts, codes = _room(rng)
+    keep = codes != L.TRUNK
+    trunks = []
+    for cx, cy in stems:
+        a, z = rng.uniform(0, 2 * np.pi, 600), rng.uniform(0, 5, 600)
+        trunks.append(np.column_stack([cx + 0.2 * np.cos(a), cy + 0.2 * np.sin(a), z - 1.7]))
+    pts = np.concatenate([pts[keep], *trunks])
+    codes = np.concatenate([codes[keep], np.full(600 * len(stems), L.TRUNK, np.uint8)])
+    odo = ClassAwareOdometry(OdometryConfig(deskew=False))
+    poses = [odo.register(f, None, codes, frame_time=0.1 * i) for i, f in enumerate(_moves(pts, 3))]
+    assert (odo.classaware_frames == [1, 2]) == anchored, odo.anchor_ratio
+    assert (odo.anchor_ratio[1] >= odo.config.degeneracy.ratio) == anchored
+    assert np.linalg.norm(poses[-1][:3, 3] - [0.6, 0.0, 0.0]) < 0.02
 
 
 @pytest.fixture(scope="module")

@@ -127,8 +127,13 @@ def short_drive(tmp_path_factory):
 
 
 def test_injected_failure_stops_one_variant_and_leaves_the_others_identical(short_drive, monkeypatch, tmp_path):
-    # one thread where TBB lets us (KISS-ICP's parallel reductions sum in varying order)
-    cfg = Config(prc=PRCConfig.preset("multibeam"), odometry=OdometryConfig(max_num_threads=1))
+    # one thread where TBB lets us (KISS-ICP's parallel reductions sum in varying order); every
+    # sweep matched class-aware (an urban sweep has no trunks to anchor it: it would fall back)
+    cfg = Config(
+        prc=PRCConfig.preset("multibeam"),
+        odometry=OdometryConfig(max_num_threads=1),
+        classaware=classaware.ClassAwareConfig(fallback=False),
+    )
     scans = [short_drive[i] for i in range(len(short_drive))]
     clean = run_compare(iter(scans), cfg, ["raw", "prc"])
     real_icp = classaware.icp

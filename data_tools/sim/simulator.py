@@ -60,7 +60,7 @@ class SimConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    scene: str = Field("urban", pattern="^(urban|forest|street)$")
+    scene: str = Field("urban", pattern="^(urban|forest|corridor|street)$")
     sensor: str = "hdl64"
     frames: int = Field(200, ge=1)
     seed: int = 0
@@ -112,6 +112,11 @@ class Simulator:
         self.sensor: SimSensor = make_sensor(config.sensor, config.lines_per_frame, config.clockwise)
         if config.scene == "urban":
             self.scene: Scene = urban_street(config.seed)
+        elif config.scene == "corridor":
+            from data_tools.sim.corridor import CorridorParams, corridor_tunnel
+
+            run = config.frames * self.sensor.period * (config.speed or 8.33) + 60.0
+            self.scene = corridor_tunnel(config.seed, CorridorParams(length=max(400.0, run)))
         elif config.scene == "street":  # parked rows and driving cars
             from data_tools.sim.street import street_scene
 
@@ -121,13 +126,13 @@ class Simulator:
             length = max(60.0, duration * (config.speed or 1.3) + 30.0)
             self.scene = forest_plot(config.seed, ForestParams(length=length))
         duration = config.frames * self.sensor.period + 0.5
-        if self.sensor.platform == "vehicle" and config.scene in ("urban", "street"):
+        if self.sensor.platform == "vehicle" and config.scene in ("urban", "corridor", "street"):
             self.trajectory: Trajectory = vehicle_trajectory(
                 self.scene,
                 duration,
                 speed=config.speed or 8.33,
                 mount_height=self.sensor.mount_height,
-                stops=config.stops,
+                stops=0 if config.scene == "corridor" else config.stops,  # no stop in a tunnel (corridor.py)
                 seed=config.seed,
             )
         else:

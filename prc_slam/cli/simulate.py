@@ -17,6 +17,7 @@ def register(app: typer.Typer) -> None:
 class SceneKind(str, Enum):
     urban = "urban"
     forest = "forest"
+    corridor = "corridor"
     street = "street"
 
 

@@ -18,8 +18,9 @@ from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam import labels as L
+from prc_slam.odometry.degeneracy import block_ratio, surface_information
 from prc_slam.odometry.guard import OdometryFailure, check_pose, is_rigid, nearest_map_point
-from prc_slam.odometry.kiss import MIN_SOURCE_POINTS, GuardedOdometry, OdometryConfig, kiss_config
+from prc_slam.odometry.kiss import MIN_SOURCE_POINTS, GuardedOdometry, KissOdometry, OdometryConfig, kiss_config
 from prc_slam.voxels import _rehash, _slot
 
 #: class groups and the codes they hold; codes not listed fall into "other"
@@ -32,6 +33,11 @@ GROUPS: dict[str, tuple[int, ...]] = {
 }
 GROUP_NAMES = tuple(GROUPS)
 _OTHER = GROUP_NAMES.index("other")
+#: the group whose points anchor the class-aware registration (PRC's trunks in forest mode)
+ANCHOR_GROUP = GROUP_NAMES.index("trunk")
+#: the twist components anchors on upright stems constrain: x, y and the rotation about z
+#: (sensor frame); stems say nothing of the height, which the ground gives either way
+ANCHOR_AXES = (0, 1, 5)
 
 
 def group_of_codes() -> np.ndarray:
@@ -57,6 +63,13 @@ class ClassAwareConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     weights: dict[str, float] = Field(default_factory=lambda: dict(WEIGHTS["urban"]))
+    fallback: bool = Field(
+        True,
+        description="register a sweep as the prc variant does (KISS-ICP on the same points) unless its anchors (the "
+        "trunk group, matched at the predicted pose) constrain x, y and yaw on their own: no degenerate direction "
+        "by odometry.degeneracy.ratio (one stem leaves the yaw and the tangential shift confounded; two apart do "
+        "not); classaware_frames lists the sweeps matched class-aware",
+    )
 
     @classmethod
     def for_mode(cls, mode: str) -> ClassAwareConfig:
@@ -369,6 +382,11 @@ class ClassAwareOdometry(GuardedOdometry):
         self._init_guard()
         self.correspondences: list[np.ndarray] = []  # per frame, per group
         self.iterations: list[int] = []
+        #: the prc registration, kept in step, for the sweeps whose anchors do not hold the pose
+        self.fallback = KissOdometry(self.config) if self.classes.fallback else None
+        self.classaware_frames: list[int] = []  # frames registered class-aware (all of them without fallback)
+        #: per frame, the anchors' conditioning (smallest over largest information of x, y, yaw; None: not judged)
+        self.anchor_ratio: list[float | None] = []
 
     @property
     def threshold(self) -> float:
@@ -421,6 +439,7 @@ class ClassAwareOdometry(GuardedOdometry):
         if source is not None and np.shape(source) != (len(raw),):
             raise ValueError(f"source mask of shape {np.shape(source)} for {len(raw)} points")
         chosen = np.ones(int(finite.sum()), bool) if source is None else np.asarray(source, bool)[finite]
+        given = (raw, times, frame_time, source)  # for the prc registration to fall back on
         pts, times, dropped, t_ref, dt = self._prepare(raw, times, frame_time)
         codes = codes[finite]
         if not is_rigid(self.last_pose) or not is_rigid(self.last_delta):
@@ -462,19 +481,20 @@ class ClassAwareOdometry(GuardedOdometry):
         counts = np.zeros(len(GROUP_NAMES), np.int64)
         if self.map.n and len(source) < MIN_SOURCE_POINTS:
             check_pose(initial, self.last_pose, dt, self.config.guard, "the prediction")
+            if self.fallback is not None:
+                self.fallback.follow(given[0], given[1], given[2], initial, update_map=False)
             self.last_pose, self.last_delta = initial, motion  # the constant velocity carries on
             self.correspondences.append(counts)
             self.iterations.append(0)
+            self.anchor_ratio.append(None)
             return self._coast(len(source), initial, sigma, dropped)
-        new_pose, iters = initial, 0
-        if self.map.n and len(source):
-            new_pose, counts, _, iters = icp(
-                source, source_group, self.weights, *self.map.index(), self.voxel, initial, 3.0 * sigma, sigma,
-                self.config.max_num_iterations, self.config.convergence_criterion,
-            )  # fmt: skip
-        check_pose(new_pose, self.last_pose, dt, self.config.guard, "class-aware ICP")
-        if self.config.guard.fail_on_max_iterations and iters >= self.config.max_num_iterations:
-            raise OdometryFailure(f"class-aware ICP did not converge in {iters} iterations")
+        if self._anchored(source, source_group, initial, sigma):
+            new_pose, counts, iters = self._register_classaware(source, source_group, initial, sigma, dt)
+            if self.fallback is not None:
+                self.fallback.follow(given[0], given[1], given[2], new_pose)
+        else:
+            new_pose, iters = self._register_prc(given), -1
+            check_pose(new_pose, self.last_pose, dt, self.config.guard, "KISS-ICP (class-aware fallback)")
         self._health(source, source_group, new_pose, sigma, dropped, int(iters), self.map)
         self.adaptive_threshold.update_model_deviation(np.linalg.inv(initial) @ new_pose)
         down = np.concatenate(downs)
@@ -485,6 +505,59 @@ class ClassAwareOdometry(GuardedOdometry):
         self.correspondences.append(counts)
         self.iterations.append(int(iters))
         return new_pose.copy()
+
+    def _anchored(self, source: np.ndarray, source_group: np.ndarray, initial: np.ndarray, sigma: float) -> bool:
+        """Whether this sweep is matched class-aware: always without ``fallback``; else when its
+        anchors (:data:`ANCHOR_GROUP`), matched to the map at the predicted pose, constrain x, y
+        and yaw (:data:`ANCHOR_AXES`) on their own: the smallest over the largest eigenvalue of
+        their scaled information (:mod:`~prc_slam.odometry.degeneracy`, a stem's points as a line
+        across which they constrain the pose) in those three directions is at least
+        ``odometry.degeneracy.ratio``. Recorded in ``anchor_ratio``."""
+        if self.fallback is None:
+            self.anchor_ratio.append(None)
+            return True
+        if not self.map.n:
+            self.anchor_ratio.append(None)
+            return False
+        sel = source_group == ANCHOR_GROUP
+        ratio = 0.0
+        if np.count_nonzero(sel) >= len(ANCHOR_AXES):
+            H, n, arm2 = surface_information(
+                source[sel], source_group[sel], self.map.index(), self.voxel, sigma, initial, lines=True
+            )
+            ratio = block_ratio(H, arm2, ANCHOR_AXES) if n >= len(ANCHOR_AXES) else 0.0
+        self.anchor_ratio.append(ratio)
+        return ratio >= self.config.degeneracy.ratio
+
+    def _register_classaware(
+        self, source: np.ndarray, source_group: np.ndarray, initial: np.ndarray, sigma: float, dt: float
+    ) -> tuple[np.ndarray, np.ndarray, int]:
+        """Class-aware ICP from ``initial`` (the guards, then the degeneracy handling); the pose,
+        correspondences per group and iterations. The frame joins ``classaware_frames``."""
+        new_pose, iters = initial, 0
+        counts = np.zeros(len(GROUP_NAMES), np.int64)
+        if self.map.n and len(source):
+            new_pose, counts, _, iters = icp(
+                source, source_group, self.weights, *self.map.index(), self.voxel, initial, 3.0 * sigma, sigma,
+                self.config.max_num_iterations, self.config.convergence_criterion,
+            )  # fmt: skip
+        check_pose(new_pose, self.last_pose, dt, self.config.guard, "class-aware ICP")
+        if self.config.guard.fail_on_max_iterations and iters >= self.config.max_num_iterations:
+            raise OdometryFailure(f"class-aware ICP did not converge in {iters} iterations")
+        new_pose = self._condition(source, source_group, self.map, sigma, new_pose, initial)
+        self.classaware_frames.append(len(self.poses))
+        return new_pose, counts, int(iters)
+
+    def _register_prc(self, given: tuple) -> np.ndarray:
+        """The prc variant's registration of this sweep (KISS-ICP on the same points, kept in
+        step with this odometry's poses), with its conditioning and degenerate directions."""
+        fb = self.fallback
+        before = len(fb.degenerate_frames)
+        points, times, frame_time, source = given
+        pose = fb.register(points, times, None, frame_time, source=source)
+        self.conditioning.append(fb.conditioning[-1])
+        self.degenerate_frames.extend(fb.degenerate_frames[before:])
+        return pose
 
 
 def warm_up() -> None:

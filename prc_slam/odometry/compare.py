@@ -163,6 +163,8 @@ class CompareResult:
                 "ms_health": float(np.mean(run.odometry.health_ms)) if run.odometry.health_ms else None,
                 # frames given the predicted pose, too few points to register (kiss.MIN_SOURCE_POINTS)
                 "coasted_frames": [i for i in run.odometry.coasted if i < n],
+                # directions the matched surfaces did not constrain (odometry.degeneracy), per frame
+                "degenerate_frames": [d for d in run.odometry.degenerate_frames if d["frame"] < n],
             }
             if run.failed is not None:
                 m["failed_at_frame"] = run.failed["frame"]
@@ -184,6 +186,7 @@ class CompareResult:
                 "threshold_m": [h.threshold_m for h in health],
                 "iterations": [h.iterations for h in health],
                 "suspicious": [h.suspicious for h in health],
+                "degeneracy_ratio": [None if c is None else c.ratio for c in run.odometry.conditioning[:n]],
             }
             if run.counts_in:
                 m["points_in_per_class"] = run.counts_in
@@ -194,6 +197,8 @@ class CompareResult:
                 m["correspondences_per_group_mean"] = {
                     g: float(per_frame[:, i].mean()) for i, g in enumerate(GROUP_NAMES)
                 }
+                # sweeps matched class-aware; the others fell back to the prc registration (too few anchors)
+                m["classaware_frames"] = [i for i in run.odometry.classaware_frames if i < n]
             if self.gt_poses is not None and n:
                 est = self.estimate_in_world(name)
                 gt = self.gt_poses[:n]

@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
+from prc_slam.odometry.degeneracy import Conditioning, DegeneracyConfig, analyse
 from prc_slam.odometry.guard import (
     DivergenceMonitor,
     FrameHealth,
@@ -80,6 +81,7 @@ class OdometryConfig(BaseModel):
         "KISS-ICP holds while it registers",
     )
     guard: GuardConfig = Field(default_factory=GuardConfig)
+    degeneracy: DegeneracyConfig = Field(default_factory=DegeneracyConfig)
 
 
 @contextmanager
@@ -291,6 +293,10 @@ class GuardedOdometry:
         self.coasted: list[int] = []  # frames (indices into poses) given the predicted pose, not registered
         #: the ``time.perf_counter()`` intervals of the last frame's health work (not registration)
         self.health_spans: list[tuple[float, float]] = []
+        #: per registered frame, its conditioning (None: not registered against a map, or not computed)
+        self.conditioning: list[Conditioning | None] = []
+        #: ``{"frame", "kind", "direction", "ratio", "kept_prediction"}`` per degenerate direction of a frame
+        self.degenerate_frames: list[dict] = []
 
     def _health_since(self, t0: float) -> float:
         """Record the health work from ``t0`` until now; its milliseconds."""
@@ -350,6 +356,7 @@ class GuardedOdometry:
         self.health_ms.append(self._pending_ms)
         self._pending_ms = 0.0
         self.coasted.append(len(self.poses))
+        self.conditioning.append(None)
         self.poses.append(predicted.copy())
         return predicted.copy()
 
@@ -368,6 +375,30 @@ class GuardedOdometry:
         self.health_ms.append(self._health_since(t0) + self._pending_ms)
         self._pending_ms = 0.0
         return h
+
+    def _condition(self, source, groups, gmap, sigma, pose, initial) -> np.ndarray:
+        """The frame's conditioning at ``pose`` (:mod:`~prc_slam.odometry.degeneracy`), recorded;
+        after the guard's warm-up frames, degenerate directions are recorded in
+        ``degenerate_frames`` and the pose returned keeps ``initial`` (the constant-velocity
+        prediction) along them when ``degeneracy.keep_prediction`` says so (else ``pose``)."""
+        cfg = self.config.degeneracy
+        if not cfg.enabled or not gmap.n or not len(source):
+            self.conditioning.append(None)
+            return pose
+        cond = analyse(source, groups, gmap.index(), gmap.voxel, sigma, pose, cfg.ratio)
+        self.conditioning.append(cond)
+        frame = len(self.poses)
+        if not cond.degenerate or frame < self.config.guard.warm_up:
+            # a map of the first few sweeps holds too few points a voxel to show its surfaces, and
+            # the constant velocity is not yet known: the guard's warm-up frames are not judged
+            return pose
+        keep = cfg.keep_prediction
+        for d in cond.directions():
+            self.degenerate_frames.append({"frame": frame, **d, "kept_prediction": keep})
+        if not keep:
+            return pose
+        xi = cond.project(se3_log(np.linalg.inv(initial) @ pose))
+        return initial @ se3_exp(xi)
 
 
 class KissOdometry(GuardedOdometry):
@@ -478,7 +509,9 @@ class KissOdometry(GuardedOdometry):
             )
         )
         check_pose(new_pose, kiss.last_pose, dt, self.config.guard, "KISS-ICP")
-        self._health(source, np.zeros(len(source), np.int64), new_pose, sigma, dropped, -1, self._shadow)
+        groups = np.zeros(len(source), np.int64)
+        new_pose = self._condition(source, groups, self._shadow, sigma, new_pose, initial_guess)
+        self._health(source, groups, new_pose, sigma, dropped, -1, self._shadow)
         kiss.adaptive_threshold.update_model_deviation(np.linalg.inv(initial_guess) @ new_pose)
         kiss.local_map.update(frame_downsample, new_pose)
         t0 = time.perf_counter()
@@ -489,6 +522,40 @@ class KissOdometry(GuardedOdometry):
         pose = new_pose.copy()
         self.poses.append(pose)
         return pose.copy()
+
+    def follow(
+        self,
+        points: np.ndarray,
+        times: np.ndarray | None,
+        frame_time: float | None,
+        pose: np.ndarray,
+        update_map: bool = True,
+    ) -> None:
+        """Take ``pose`` as this frame's pose without registering it: the map (unless
+        ``update_map`` is False), the adaptive threshold and the constant-velocity model go on from
+        it, as after :meth:`register`. For an odometry that registered the frame otherwise
+        (:class:`~prc_slam.odometry.classaware.ClassAwareOdometry` with its anchors) and keeps
+        this one in step to fall back on."""
+        from kiss_icp.voxelization import voxel_down_sample
+
+        from prc_slam.odometry.classaware import GroupVoxelMap
+
+        kiss = self.kiss
+        pts, times, _, t_ref, _ = self._prepare(points, times, frame_time)
+        pts, stamps = self._deskew(pts, times, t_ref, kiss.last_delta)
+        initial = kiss.last_pose @ self._predicted_motion(kiss.last_delta)
+        if update_map:
+            frame = kiss.preprocessor.preprocess(pts, stamps, kiss.last_delta)
+            down = voxel_down_sample(frame, self.voxel * 0.5) if len(frame) else np.zeros((0, 3))
+            kiss.adaptive_threshold.update_model_deviation(np.linalg.inv(initial) @ pose)
+            kiss.local_map.update(down, pose)
+            if self._shadow is None:
+                self._shadow = GroupVoxelMap(self.voxel, self.config.max_range, self.config.max_points_per_voxel)
+            self._shadow.update(down, np.zeros(len(down), np.int64), pose)
+        kiss.last_delta = np.linalg.inv(kiss.last_pose) @ pose
+        kiss.last_pose = np.array(pose, dtype=np.float64)
+        self.conditioning.append(None)
+        self.poses.append(self.kiss.last_pose.copy())
 
     def _check_correspondences(self, source: np.ndarray, guess: np.ndarray, sigma: float) -> None:
         """KISS-ICP solves its normal equations without a rank check, and a NaN from them aborts

@@ -24,6 +24,8 @@ Entity paths::
     metrics/icp_threshold/V, metrics/icp/V/...    Scalars: adaptive threshold, inlier fraction, residual,
                                   divergence flag
     metrics/error/position_m      Scalars: position error against the ground truth
+    metrics/degeneracy/V          Scalars: the registration's conditioning (smallest over largest
+                                  information; below odometry.degeneracy.ratio a direction is degenerate)
     world/map_classified/part_N   Points3D, a classified map (shifted to a display origin when
                                   geo-referenced: :attr:`RerunSink.map_origin`, in the text log)
     logs                          TextLog: warnings and skips
@@ -294,6 +296,9 @@ class RerunSink:
                         # counts beside the point counts; fractions, metres and the flag on the ICP axis
                         path = f"metrics/inliers/{name}" if key == "inliers" else f"metrics/icp/{name}/{key}"
                         self.rec.log(path, rr.Scalars(float(h[key])))
+            conditioning = getattr(record.runs[name].odometry, "conditioning", None)
+            if conditioning and conditioning[-1] is not None:  # smallest / largest information (odometry.degeneracy)
+                self.rec.log(f"metrics/degeneracy/{name}", rr.Scalars(conditioning[-1].ratio))
         if full:
             self._log_trajectories(main)
             self._log_clouds(record, main, world_from_first)
