@@ -16,11 +16,21 @@ import numpy as np
 from numba import njit
 
 from data_tools.errors import DataError
-from data_tools.organize.polar import TWO_PI, wrap, wrap_angles
+from data_tools.organize.polar import TWO_PI, wrap_angles
 
 #: columns per turn above which an estimate is refused (the finest spinning sensors: 0.05 deg, 7,200
 #: a turn; a map tile's points, steps of micro-degrees seen from a corner, gave 360,391 and 16 s)
 MAX_COLUMNS = 16384
+
+
+@njit(cache=True, nogil=True)
+def wrap(a):
+    """One angle (rad) wrapped into (-pi, pi]."""
+    while a > np.pi:
+        a -= 2.0 * np.pi
+    while a <= -np.pi:
+        a += 2.0 * np.pi
+    return a
 
 
 def azimuth_direction(

@@ -24,7 +24,10 @@ def wrap_angles(a: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, nogil=True, inline="always")
 def fast_atan2(y, x):
-    """atan2 by a degree-11 minimax polynomial (|error| < 2e-6 rad, far below a column)."""
+    """atan2 by a degree-11 minimax polynomial (|error| < 2e-6 rad, far below a column).
+
+    Inlined into kernels of other modules too (:mod:`~data_tools.organize.beams`), whose numba
+    cache does not see a change here: ``make clean-cache`` after editing it."""
     ax = abs(x)
     ay = abs(y)
     mx = max(ax, ay)
@@ -40,16 +43,6 @@ def fast_atan2(y, x):
     if y < 0.0:
         r = -r
     return r
-
-
-@njit(cache=True, nogil=True)
-def wrap(a):
-    """One angle (rad) wrapped into (-pi, pi]."""
-    while a > np.pi:
-        a -= 2.0 * np.pi
-    while a <= -np.pi:
-        a += 2.0 * np.pi
-    return a
 
 
 @njit(cache=True, nogil=True)
