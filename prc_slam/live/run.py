@@ -232,19 +232,38 @@ SWEEP_DTYPE = np.dtype(
 )  # fmt: skip
 
 
+#: car-sized boxes of the synthetic street: (x, y) of the centre, length, width, height (m)
+SYNTHETIC_CARS = ((7.0, 3.5, 4.5, 1.8, 1.5), (-9.0, -3.5, 4.5, 1.8, 1.5), (12.0, -3.5, 4.8, 1.9, 1.6))
+
+
+def _box_range(d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Range along the unit rays ``d`` (N, 3) from the origin to the box [lo, hi] (inf: missed)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = lo / d, hi / d
+    near = np.nanmax(np.minimum(t1, t2), axis=1)
+    far = np.nanmin(np.maximum(t1, t2), axis=1)
+    return np.where((far >= near) & (near > 0), near, np.inf)
+
+
 def synthetic_sweep(rings: int = 32, cols: int = 1000, turn: float = 0.0) -> np.ndarray:
-    """A decoded Velodyne sweep (velodyne-decoder's fields) of a street: ground 1.8 m below,
-    walls 8-14 m around; ``turn``: the sensor's yaw (rad)."""
-    az = np.repeat(np.linspace(0.0, 2 * np.pi, cols, endpoint=False), rings)
-    wall = 11.0 + 3.0 * np.sin(3 * (az + turn))
+    """A decoded Velodyne sweep (velodyne-decoder's fields) of a street: road 1.8 m below the
+    sensor, 15 cm curbs 5 m to each side, parked cars, walls 8-14 m around; ``turn``: the
+    sensor's yaw (rad)."""
+    az = np.repeat(np.linspace(0.0, 2 * np.pi, cols, endpoint=False), rings) + turn
     ring = np.tile(np.arange(rings), cols)
     el = np.radians(np.linspace(-30.0, 10.0, rings))[ring]
-    down = np.where(el < 0, 1.8 / np.maximum(-np.sin(el), 1e-6), np.inf)
-    r = np.minimum(wall / np.maximum(np.cos(el), 1e-6), down)
+    d = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    wall = (11.0 + 3.0 * np.sin(3 * az)) / np.maximum(np.cos(el), 1e-6)
+    road = np.where(el < 0, 1.8 / np.maximum(-np.sin(el), 1e-6), np.inf)
+    walk = np.where(el < 0, 1.65 / np.maximum(-np.sin(el), 1e-6), np.inf)
+    across = np.abs(np.where(np.isfinite(road), road, 0.0) * d[:, 1])
+    ground = np.where(across < 5.0, road, walk)  # the curb: sidewalks beyond |y| = 5 m
+    r = np.minimum(wall, ground)
+    for x, y, length, width, height in SYNTHETIC_CARS:
+        lo = np.array([x - length / 2, y - width / 2, -1.8])
+        r = np.minimum(r, _box_range(d, lo, lo + np.array([length, width, height])))
     pts = np.zeros(len(az), dtype=SWEEP_DTYPE)
-    pts["x"] = r * np.cos(el) * np.cos(az)
-    pts["y"] = r * np.cos(el) * np.sin(az)
-    pts["z"] = r * np.sin(el)
+    pts["x"], pts["y"], pts["z"] = (r[:, None] * d).T
     pts["intensity"] = 50.0
     pts["time"] = np.repeat(np.arange(cols), rings) / cols * 0.1 - 0.1
     pts["column"] = np.repeat(np.arange(cols), rings)
