@@ -186,6 +186,45 @@ def test_unknown_format(tmp_path):
         open_dataset(tmp_path / "nope")
 
 
+def test_every_format_has_one_reader_in_the_registry():
+    """``--format`` names and the registry agree: each format is opened by exactly one reader, and
+    each reader's options are what ``open_dataset`` checks the given options against."""
+    from data_tools.datasets import FORMAT_ALIASES, FORMATS, readers
+
+    names = [r.format for r in readers()]
+    assert sorted(names) == sorted(FORMATS) and len(set(names)) == len(names)
+    assert set(FORMAT_ALIASES.values()) <= set(FORMATS)
+    assert all(isinstance(r.options, tuple) for r in readers())
+
+
+def test_the_first_reader_that_recognises_an_input_opens_it(tmp_path):
+    """A folder that is a simulated sequence and also holds sweep files is the simulated sequence
+    (the registry's order), and a folder of sweeps forced to another format gets that reader's error."""
+    from data_tools.datasets import detect_format
+
+    root = tmp_path / "seq"
+    (root / "velodyne").mkdir(parents=True)
+    (root / "000000.pcd").write_text("")
+    assert detect_format(root) == "kitti"  # the KITTI directory comes before the folder of sweeps
+    (root / "sim.json").write_text("{}")
+    assert detect_format(root) == "sim"
+    with pytest.raises(DataError, match="--topic does not apply to sim input"):
+        open_dataset(root, topic="/points")
+    with pytest.raises(DataError, match="unsupported format 'nope'"):
+        open_dataset(root, "nope")
+
+
+def test_organiser_hints_from_reader_options():
+    from data_tools.sequence import organiser_hints
+
+    assert organiser_hints({}) == {"rows": None, "cols": None, "method": "auto"}
+    assert organiser_hints({"rows": "64", "cols": 2048, "organize_method": "beams"}) == {
+        "rows": 64,
+        "cols": 2048,
+        "method": "beams",
+    }
+
+
 def make_ouster(path: Path, rows: int = 8, cols: int = 32, **override) -> Path:
     rng = np.random.default_rng(0)
     data = {
