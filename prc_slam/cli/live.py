@@ -84,10 +84,10 @@ def live(
 ) -> None:
     """Run PRC, the filter and KISS-ICP on a sensor's sweeps as they arrive, and watch them live.
 
-    Receiving runs on its own thread and never waits; when processing falls behind, whole sweeps
-    are dropped and counted. A status line (rates, drops, latency) every second on a terminal,
-    every 10 s in the log; the figures at the end and in --json. Ctrl-C or SIGTERM stops the run
-    and closes every output."""
+    Receiving runs in its own process (Velodyne; a thread for Ouster and recordings) and never
+    waits; when processing falls behind, whole sweeps are dropped and counted (``--queue``). A
+    status line (rates, drops, latency) every second on a terminal, every 10 s in the log; the
+    figures at the end and in --json. Ctrl-C or SIGTERM stops the run and closes every output."""
     from prc_slam.jobs.common import Viewer, write_json
     from prc_slam.live.run import LiveOptions, run_live
     from prc_slam.live.sources import parse_source
