@@ -86,6 +86,36 @@ def summary(m: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def speed(frames: int = 10, rounds: int = 5) -> dict[str, float]:
+    """Points per second of the default detector and of the configuration before issue 38 (Sec. 5 (a)
+    ground on spinning sensors, every top on the highest beam going on upward, any high return) on
+    the bench's simulated hdl64 urban sweeps (``prc_slam.benchmark.bench_online``), alternating in one
+    process; each figure the best of ``rounds``."""
+    import time
+
+    import numpy as np
+
+    from data_tools.sim.simulator import SimConfig, Simulator
+    from prc_slam.scan import Scan
+
+    sim = Simulator(SimConfig(scene="urban", sensor="hdl64", frames=frames + 1))
+    ranges = [sim.frame(i).ranges for i in range(frames + 1)]
+    model = sim.sensor.model
+    legacy = dict(column_ground_all=False, spinning=SpinningCarParams(top_width=0.0, high_steep=False))
+    best = {"default": np.inf, "before": np.inf}
+    for _ in range(rounds):
+        for name, kw in (("default", {}), ("before", legacy)):
+            scans = [Scan(r, model) for r in ranges]
+            det = OnlineDetector(**kw)
+            det.process(scans[0])
+            t0 = time.perf_counter()
+            for scan in scans[1:]:
+                det.process(scan)
+            best[name] = min(best[name], (time.perf_counter() - t0) / frames)
+    points = float(np.mean([Scan(r, model).n_points for r in ranges[1:]]))
+    return {f"{k}_points_per_s": points / v for k, v in best.items()} | {f"{k}_ms": 1e3 * v for k, v in best.items()}
+
+
 def fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.3f}"
 
@@ -127,7 +157,11 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="SpinningCarParams override")
     ap.add_argument("--coarse", action="append", default=[], metavar="NAME=VALUE", help="CoarseParams override")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--speed", action="store_true", help="only the speed before / after, in one process")
     args = ap.parse_args()
+    if args.speed:
+        print(json.dumps(speed(), indent=1))
+        return
     overrides = parse_overrides(args.set, SpinningCarParams, ap)
     coarse = parse_overrides(args.coarse, CoarseParams, ap)
     runs: list[tuple[str, str, Path, int | None]] = [

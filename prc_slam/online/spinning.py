@@ -557,7 +557,8 @@ def column_ground(
     if not has.any():
         return np.zeros(scan.shape, bool), np.zeros(len(lines)), None
     first = lines[has, np.argmax(v[has], axis=1)]
-    modes, counts = mean_shift_modes(xyz[first, 2], 0.2)
+    # z_d from at most ~512 columns spread over the sweep (the mode search is quadratic in its samples)
+    modes, counts = mean_shift_modes(xyz[first[:: max(1, len(first) // 512)], 2], 0.2)
     wide = modes[counts >= min_share * counts.sum()]
     zd = float(wide.min()) if len(wide) else float(modes[0])
     ground, height = _column_ground(
