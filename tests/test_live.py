@@ -284,3 +284,22 @@ def test_port_in_use_is_named():
         port = s.getsockname()[1]
         with pytest.raises(OSError, match=f"cannot listen on 127.0.0.1:{port}"):
             run_live(Source("velodyne", LOOPBACK, port), config(), LiveOptions(timeout=0.5, warm_up=False))
+
+
+def test_ouster_lost_packets_counted(tmp_path):
+    pcap = OUSTER / "OS-0-128-U1_v2.3.0_1024x10.pcap"
+    if not pcap.is_file():
+        pytest.skip(f"shared Ouster capture not found: {pcap}")
+    sent: list = []
+
+    def on_ready(rx):
+        def play():
+            sent.append(replay(pcap, LOOPBACK, rx.port, loop=3, drop=0.1, seed=4))
+
+        threading.Thread(target=play, daemon=True).start()
+
+    opts = LiveOptions(timeout=1.0, queue=100, meta=pcap.with_suffix(".json"), warm_up=False)
+    run = run_live(Source("ouster", LOOPBACK, 0), config(), opts, on_ready=on_ready)
+    m = run.metrics
+    assert sent and sent[0].dropped > 0
+    assert m["frames"] == 3 and m["lost_packets"] == sent[0].dropped
