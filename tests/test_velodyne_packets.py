@@ -100,3 +100,31 @@ def test_simulate_pcap_option_names_unsupported_sensors(tmp_path):
     res = CliRunner().invoke(app, ["simulate", "--out", str(tmp_path / "s"), "--sensor", "os1-64", "--pcap", "x.pcap"])
     assert res.exit_code == 2
     assert "--pcap" in res.output and "os1-64" in res.output
+
+
+def test_simulate_writes_the_capture_beside_the_sequence(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from data_tools.velodyne_pcap import VelodynePcapSequence
+    from prc_slam.cli import app
+
+    res = CliRunner().invoke(
+        app,
+        [
+            "simulate",
+            "--out",
+            str(tmp_path / "s"),
+            "--sensor",
+            "vlp16",
+            "--frames",
+            "2",
+            "--pcap",
+            str(tmp_path / "c.pcap"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp_path / "s" / "sim.json").read_text())["config"]["clockwise"] is True
+    seq = VelodynePcapSequence(tmp_path / "c.pcap")
+    assert seq.model == "VLP16" and sum(len(seq.sweep(i)[1]) for i in range(len(seq))) > 10_000
