@@ -1,4 +1,5 @@
-"""Receiving sweeps on their own thread: UDP packets → decoding → whole sweeps → a bounded queue.
+"""Receiving sweeps on their own thread or process: UDP packets → decoding → whole sweeps → a
+bounded queue.
 
 The receiver never waits on processing: it puts each completed sweep in a :class:`SweepQueue`,
 which drops its oldest *whole* sweep when full (counted). Velodyne packets go through the same
@@ -34,8 +35,14 @@ log = logging.getLogger("prc_slam")
 SENDER_QUIET_S = 1.0
 #: no packet for this long: a warning (repeated every such period of silence)
 SILENCE_WARN_S = 2.0
-#: nominal spacing of data packets in GPS microseconds (12 blocks of firings)
-PACKET_PERIOD_US = {"HDL32E": 12 * 46.08, "VLP16": 12 * 2 * 55.296, "PuckHiRes": 12 * 2 * 55.296}
+#: nominal spacing of data packets in GPS microseconds (12 blocks of firings); packets of other
+#: models are not checked for gaps (``lost_packets`` stays 0)
+PACKET_PERIOD_US = {
+    "HDL32E": 12 * 46.08,
+    "VLP16": 12 * 2 * 55.296,
+    "PuckHiRes": 12 * 2 * 55.296,
+    "VLP32C": 12 * 55.296,
+}
 HOUR_US = 3_600_000_000
 #: Linux: kernel receive stamps of datagrams (struct timespec), SO_TIMESTAMPNS / SCM_TIMESTAMPNS
 SO_TIMESTAMPNS = SCM_TIMESTAMPNS = 35
