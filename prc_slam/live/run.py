@@ -157,9 +157,7 @@ class Status:
         now = time.perf_counter()
         if self.tty and now >= self._next_tty:
             self._next_tty = now + self.every
-            from prc_slam.cli.common import console
-
-            console.print(self.line(), highlight=False, markup=False)
+            print(self.line(), file=sys.stderr, flush=True)
         if now >= self._next_log:
             self._next_log = now + self.log_every
             if self.tty:  # already on the terminal: the log file only
