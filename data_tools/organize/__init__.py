@@ -25,7 +25,13 @@ in the Scan as a zero row of ``Scan.cloud`` mapped to an empty slot (range 0), s
 ``Scan.per_point`` gives them label 0 (no_return) and ``Scan.points()`` stays finite.
 """
 
-from data_tools.organize.beams import MIN_BEAM_CONCENTRATION, beam_concentration, estimate_beam_offset, estimate_beams
+from data_tools.organize.beams import (
+    ELEVATION_BINS,
+    MIN_BEAM_CONCENTRATION,
+    beam_concentration,
+    estimate_beam_offset,
+    estimate_beams,
+)
 from data_tools.organize.checks import (
     MAX_COLLISIONS,
     MIN_OCCUPANCY,
@@ -45,6 +51,7 @@ from data_tools.organize.spin_axis import (
 )
 
 __all__ = [
+    "ELEVATION_BINS",
     "MAX_COLLISIONS",
     "MAX_COLUMNS",
     "MAX_RANGE",
