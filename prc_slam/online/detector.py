@@ -198,11 +198,11 @@ class OnlineDetector:
         ground = self.ground.process(scan, coarse)
         heights = self.ground.line_heights if self.per_line_height else self.ground.height
         line_heights = self.ground.line_heights
-        column = None
-        if spinning and self.column_ground_all and line_heights is not None:  # the ground labels' column ground
-            column, _, _ = column_ground(scan, coarse.lines)
+        column = None  # the ground labels' column ground (column_ground_all), made beside the cars
+        more_ground = self.column_ground_all
         if spinning and line_heights is None:  # columns too short for Sec. 5 (a): the column profile
             ground, line_heights, heights = column_ground(scan, coarse.lines)
+            more_ground = False
             if self.per_line_height:
                 heights = line_heights
         if spinning and line_heights is not None:
@@ -232,7 +232,11 @@ class OnlineDetector:
                     veg = coarse.codes == L.VEGETATION
                 return detect_cars_spinning(scan, ground, lines, line_heights, veg, self.spinning_params, zg)
 
-            (cars, curbs), _ = side_by_side(spinning_cars, all_curbs)  # the cars do not use the curbs
+            def curbs_and_column() -> tuple[CurbResult, np.ndarray | None]:
+                col = column_ground(scan, lines)[0] if more_ground else None
+                return all_curbs(), col
+
+            (cars, (curbs, column)), _ = side_by_side(spinning_cars, curbs_and_column)  # cars use neither
         else:
             curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
             cars = detect_cars(scan, coarse, heights, curbs.mask, self.car_params)

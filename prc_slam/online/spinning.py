@@ -497,6 +497,23 @@ def segment_features(
 
 
 @njit(cache=True, nogil=True)
+def first_returns(lines, valid):
+    """The first valid slot of every line that has one (``lines``: int64 (L, n), ``-1`` pads)."""
+    out = np.empty(lines.shape[0], np.int64)
+    m = 0
+    for li in range(lines.shape[0]):
+        for j in range(lines.shape[1]):
+            s = lines[li, j]
+            if s < 0:
+                break
+            if valid[s]:
+                out[m] = s
+                m += 1
+                break
+    return out[:m]
+
+
+@njit(cache=True, nogil=True)
 def _column_ground(xyz, valid, lines, zd, tol, slope, max_step, eps):
     n_lines = lines.shape[0]
     ground = np.zeros(xyz.shape[0], np.bool_)
@@ -551,14 +568,11 @@ def column_ground(
 
     xyz = scan.slot_xyz64()
     valid = scan.valid.ravel()
-    ok = lines >= 0
-    v = valid[np.where(ok, lines, 0)] & ok
-    has = v.any(axis=1)
-    if not has.any():
+    first = first_returns(lines, valid)
+    if len(first) == 0:
         return np.zeros(scan.shape, bool), np.zeros(len(lines)), None
-    first = lines[has, np.argmax(v[has], axis=1)]
-    # z_d from at most ~512 columns spread over the sweep (the mode search is quadratic in its samples)
-    modes, counts = mean_shift_modes(xyz[first[:: max(1, len(first) // 512)], 2], 0.2)
+    # z_d from at most ~128 columns spread over the sweep (the mode search is quadratic in its samples)
+    modes, counts = mean_shift_modes(xyz[first[:: max(1, len(first) // 128)], 2], 0.2)
     wide = modes[counts >= min_share * counts.sum()]
     zd = float(wide.min()) if len(wide) else float(modes[0])
     ground, height = _column_ground(
