@@ -190,6 +190,20 @@ def test_compare_metrics_schema_and_no_ground_truth(short_drive):
         run_compare(scans, Config(), ["magic"])
 
 
+def test_compare_metrics_say_degenerate_frames_and_classaware_sweeps(short_drive):
+    """An urban drive: no direction degenerate, and no trunk to anchor class-aware matching, so
+    prc+classaware registers every sweep as prc does (the same poses)."""
+    scans = [short_drive[i] for i in range(8)]
+    cfg = Config(prc=PRCConfig.preset("multibeam"), odometry=OdometryConfig(max_num_threads=1))
+    m = run_compare(scans, cfg, ["raw", "prc", "prc+classaware"]).metrics()["variants"]
+    for v in m.values():
+        assert v["degenerate_frames"] == []
+        ratios = v["per_frame"]["degeneracy_ratio"]
+        assert ratios[0] is None and all(0 < r <= 1 for r in ratios[1:])  # no map before the first frame
+    assert m["prc+classaware"]["classaware_frames"] == []
+    assert abs(m["prc+classaware"]["ate_rmse_m"] - m["prc"]["ate_rmse_m"]) < 1e-6
+
+
 @pytest.mark.parametrize("variant", ["raw", "prc"])
 def test_golden_urban_drive(short_drive, trajectory_regression, variant):
     res = run_compare(iter(short_drive), Config(prc=PRCConfig.preset("multibeam")), [variant])
