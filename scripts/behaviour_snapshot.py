@@ -15,6 +15,10 @@ drive written into ``OUT_DIR/inputs``: PCD folders (binary with ring and time fi
 binary_compressed, ascii, without ring), a PLY sweep, a KITTI bin folder, a LAS sweep, an MCAP and a
 ROS 1 bag in three driver layouts, and a Velodyne pcap (``prc-slam simulate --pcap``).
 
+With ``--full`` it also records the online detectors' labels of every frame
+(:class:`prc_slam.online.OnlineDetector`, one per input, frames in order) and ``prc-slam compare``'s
+metrics without the timings (and its trajectory files) on a simulated 12-sweep HDL-64E drive.
+
 ``compare A B`` prints every entry that differs between two records and exits 1 when any does,
 0 (``identical``) otherwise.
 
@@ -31,6 +35,7 @@ import dataclasses
 import hashlib
 import json
 import logging
+import re
 import subprocess
 import sys
 import time
@@ -43,6 +48,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 #: meta entries that hold timings (differ from run to run)
 TIMING_META = ("organize_seconds", "organize_span")
+#: metrics keys that hold timings or memory (left out of ``--full``'s compare metrics)
+TIMING_KEYS = re.compile(r"(^ms$|^ms_|_ms$|seconds|per_s$|rss|wall|elapsed|speed|_hz$)")
 
 
 def digest(a: Any) -> str | None:
@@ -68,8 +75,9 @@ def plain(v: Any) -> Any:
     return repr(v)
 
 
-def scan_record(scan: Any) -> dict[str, Any]:
-    """Digests of an organised Scan and of its PRC labels."""
+def scan_record(scan: Any, online: Any = None) -> dict[str, Any]:
+    """Digests of an organised Scan and of its PRC labels (and of ``online``'s labels: an
+    :class:`~prc_slam.online.OnlineDetector` of the sequence)."""
     from prc_slam.prc import PRCConfig, classify_scan
 
     rec: dict[str, Any] = {"name": scan.name, "source": Path(scan.source).name, "shape": list(scan.shape)}
@@ -85,7 +93,16 @@ def scan_record(scan: Any) -> dict[str, Any]:
     labels = classify_scan(scan, PRCConfig())
     rec["prc_labels"] = digest(labels)
     rec["prc_point_labels"] = digest(scan.per_point(labels)) if scan.point_slot is not None else None
+    if online is not None:
+        try:
+            rec["online_labels"] = digest(online.process(scan).labels)
+        except Exception as exc:
+            rec["online_labels"] = f"{type(exc).__name__}: {exc}"
     return rec
+
+
+#: record the online detectors' labels too (``--full``)
+FULL = {"online": False}
 
 
 def dataset_record(path: Path, frames: int | None = None, **options: Any) -> dict[str, Any]:
@@ -103,7 +120,12 @@ def dataset_record(path: Path, frames: int | None = None, **options: Any) -> dic
         rec["poses"] = digest(getattr(ds, "poses", None))
         rec["times"] = digest(getattr(ds, "times", None))
         n = len(ds) if frames is None else min(frames, len(ds))
-        rec["frames"] = [scan_record(ds[i]) for i in range(n)]
+        online = None
+        if FULL["online"]:
+            from prc_slam.online import OnlineDetector
+
+            online = OnlineDetector()
+        rec["frames"] = [scan_record(ds[i], online) for i in range(n)]
         if n > 1:  # iteration gives the same scans as indexing
             rec["iter_ranges"] = [digest(s.ranges) for _, s in zip(range(n), iter(ds), strict=False)]
     except DataError as exc:
@@ -286,11 +308,46 @@ def file_digest(path: Path) -> dict[str, str]:
     }
 
 
-def record(out: Path, shared: Path = SHARED) -> None:
+def untimed(v: Any) -> Any:
+    """``v`` without the entries whose keys name timings (:data:`TIMING_KEYS`), floats to 9
+    significant digits (KISS-ICP's threaded sums differ from run to run in the last bits)."""
+    if isinstance(v, dict):
+        return {k: untimed(x) for k, x in v.items() if not TIMING_KEYS.search(str(k))}
+    if isinstance(v, list):
+        return [untimed(x) for x in v]
+    if isinstance(v, float):
+        return float(f"{v:.9g}")
+    return v
+
+
+def compare_record(root: Path) -> dict[str, Any]:
+    """``prc-slam compare`` (raw, prc) on a simulated 12-sweep HDL-64E drive: its metrics without
+    timings (:func:`untimed`) and its trajectory files' poses to 9 significant digits."""
+    cli = str(Path(sys.executable).parent / "prc-slam")
+    drive, res = root / "drive", root / "compare"
+    steps = (
+        [cli, "simulate", "--out", str(drive), "--sensor", "hdl64", "--frames", "12", "--seed", "3"],
+        [cli, "compare", str(drive), "--variants", "raw,prc", "--out", str(res), "--json", str(root / "metrics.json")],
+    )
+    for cmd in steps:
+        done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if done.returncode != 0:
+            return {"error": f"{' '.join(cmd[1:3])}: exit {done.returncode}: {done.stderr.strip()[-300:]}"}
+    metrics = json.loads((root / "metrics.json").read_text())
+    trajectories = {
+        str(p.relative_to(res)): untimed(np.loadtxt(p, ndmin=2).tolist()) for p in sorted(res.rglob("*.txt"))
+    }
+    return {"metrics": untimed(metrics), "trajectories": trajectories}
+
+
+def record(out: Path, shared: Path = SHARED, full: bool = False) -> None:
     logging.disable(logging.WARNING)
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
+    FULL["online"] = full
     snap: dict[str, Any] = {"inputs": {}, "written": {}, "errors": {}}
+    if full:
+        snap["compare"] = compare_record(out / "compare_run")
     if shared.is_dir():
         kitti = shared / "kitti00"
         snap["inputs"]["kitti00"] = dataset_record(kitti)
@@ -380,12 +437,13 @@ def main(argv: list[str] | None = None) -> int:
     rec = sub.add_parser("record")
     rec.add_argument("out", type=Path)
     rec.add_argument("--data", type=Path, default=SHARED, help="the shared data (default: ../shared/data)")
+    rec.add_argument("--full", action="store_true", help="also the online detectors and prc-slam compare")
     cmp = sub.add_parser("compare")
     cmp.add_argument("a", type=Path)
     cmp.add_argument("b", type=Path)
     args = parser.parse_args(argv)
     if args.cmd == "record":
-        record(args.out, args.data)
+        record(args.out, args.data, args.full)
         return 0
     return compare(args.a, args.b)
 
