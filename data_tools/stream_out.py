@@ -30,7 +30,8 @@ import numpy as np
 
 from data_tools.errors import DataError
 from data_tools.pcd import write_pcd
-from data_tools.rosbag import DATATYPE_CODES, POINTCLOUD2, CloudMessage, Field, bag_kind
+from data_tools.pointcloud2 import DATATYPE_CODES, POINTCLOUD2, CloudMessage, Field
+from data_tools.rosbag import bag_kind
 from prc_slam import labels as L
 from prc_slam.scan import Scan
 
