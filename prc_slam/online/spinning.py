@@ -138,6 +138,9 @@ class SpinningCarParams:
     # cut above max_top is taller than any vehicle the detector takes
     top_width: float = 1.0
     top_height: float = 2.3
+    # m: step 6's vegetation share counts only returns whose beams lie closer than this there (range x beam gap),
+    # over at least min_points of them (else the share is not tested); 0: every return (the share before)
+    veg_resolution: float = 0.2
     # step 4: a high return above a column top counts only when it continues the face upwards (steeper than
     # 45 deg), not a street tree's crown over a parked van (False: any high return within the gate)
     high_steep: bool = True
@@ -726,7 +729,7 @@ def segment_tops(seg, n, height, vegetation):
     return top_at, cnt, veg.astype(np.float64)
 
 
-def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation, p, floor=None):
+def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation, p, floor=None, resolved=None):
     """Steps 4-6 on the segments 1..n of ``seg_o`` (rows in elevation order): the accepted mask
     per segment (index 0 unused, False) and the features behind it."""
     cnt, hlo, hhi, top90, length, width, thick, rough, n_rough = segment_features(
@@ -735,6 +738,9 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     share = high_touch / np.maximum(tops, 1)
     cols = seg_o.shape[1]
     top_at, cnt_all, veg = segment_tops(seg_o, n, height, vegetation)
+    if resolved is not None:  # the share over the returns the column statistic resolves, if enough of them
+        cnt_all = np.bincount(seg_o[resolved], minlength=n + 1)[: n + 1]
+        veg = np.where(cnt_all >= p.min_points, veg, 0.0)
     top_gap = rng.ravel()[top_at] * np.abs(gaps[top_at // cols])
     veg_share = veg / np.maximum(cnt_all, 1)
     roof = hhi + np.minimum(top_gap, p.max_top_gap)
@@ -760,7 +766,9 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     return ok, feats
 
 
-def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rng, gaps, vegetation, p, floor=None):
+def _merge_grazing(
+    seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rng, gaps, vegetation, p, floor=None, resolved=None
+):
     """Step 5b: a face (a segment standing on the ground, its lowest return within ``max_bottom``,
     but too low for a car: ``roof``, its top plus the beam gap allowance, under ``min_top``) and
     the segments above it (a roof, a bonnet) linked to it across a grazing surface on at least
@@ -801,7 +809,7 @@ def _merge_grazing(seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rn
         seg_g, g, valid, high, xyz, rng, alt, p.min_gate, p.gate_factor, p.max_gate, height, p.top_floor,
         p.top_width, p.high_steep, p.top_height,
     )  # fmt: skip
-    ok_g, _ = _judge(seg_g, g, ht_g, tops_g, xyz, height, valid, rng, gaps, vegetation, p, floor)
+    ok_g, _ = _judge(seg_g, g, ht_g, tops_g, xyz, height, valid, rng, gaps, vegetation, p, floor, resolved)
     # final ids: accepted groups first, then accepted segments outside an accepted group
     take_g = ok_g[gid] & multi
     alone = ok & ~take_g
@@ -896,10 +904,20 @@ def detect_cars_spinning(
         with np.errstate(invalid="ignore"):
             floor = np.maximum(rho * np.tan(alt[0]) - zg_o, 0.0)
         floor = np.where(np.isfinite(floor), floor, 0.0)
-    ok, feats = _judge(seg_o, n, high_touch, tops, o_xyz, h_o, o_valid, rng, gaps, veg_o, p, floor)
+    resolved = None
+    if p.veg_resolution > 0 and rows > 1:
+        # step 6's vegetation share only over returns whose column neighbours lie closer than veg_resolution
+        # (range x beam gap): beyond, a column crosses a car with a handful of returns, each near an edge
+        # (ground to body, body to glass, roof to background), and the coarse classifier's fast switching
+        # is the sampling's, not the surface's
+        local_gap = np.abs(np.concatenate([gaps[:-1], gaps[-2:-1]]))
+        resolved = (rng * local_gap[:, None] <= p.veg_resolution) & o_valid
+        veg_o = veg_o & resolved
+    ok, feats = _judge(seg_o, n, high_touch, tops, o_xyz, h_o, o_valid, rng, gaps, veg_o, p, floor, resolved)
     inst_o, merged = _merge_grazing(
-        seg_o, n, ok, feats["bottom"], feats["roof"], high, alt, o_xyz, h_o, o_valid, rng, gaps, veg_o, p, floor
-    )
+        seg_o, n, ok, feats["bottom"], feats["roof"], high, alt, o_xyz, h_o, o_valid, rng, gaps, veg_o, p, floor,
+        resolved,
+    )  # fmt: skip
     if p.down_to > 0:
         inst_o = grow_down(inst_o, o_valid, o_xyz, h_down[by_elevation], alt, p.down_to, p.min_gate)
     seg = np.empty_like(seg_o)
