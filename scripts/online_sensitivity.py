@@ -31,6 +31,8 @@ SETTINGS: list[tuple[str, dict[str, Any]]] = [
     ("max_bottom 0.5 -> 0.8", {"spinning": {"max_bottom": 0.8}}),
     ("min_ring_triples 3 -> 1", {"spinning": {"min_ring_triples": 1}}),
     ("max_roughness 0.35 -> 0.5", {"spinning": {"max_roughness": 0.5}}),
+    ("veg_resolution 0.2 -> 0 (the share over every return)", {"spinning": {"veg_resolution": 0.0}}),
+    ("veg_resolution 0.2 -> 0.3", {"spinning": {"veg_resolution": 0.3}}),
     ("max_vegetation 0.5 -> 0.7", {"spinning": {"max_vegetation": 0.7}}),
     ("vegetation_gap 0.25 -> 1.0 (baselined share on every sensor)", {"spinning": {"vegetation_gap": 1.0}}),
     ("max_top 2.3 -> 2.6", {"spinning": {"max_top": 2.6}}),
