@@ -517,28 +517,40 @@ def first_returns(lines, valid):
 
 
 @njit(cache=True, nogil=True)
-def _column_ground(xyz, valid, lines, zd, tol, slope, max_step, eps):
-    n_lines = lines.shape[0]
+def _column_ground(xyz, valid, lines_t, zd, tol, slope, max_step, eps):
+    """:func:`column_ground` along every line at once, step ``j`` of all lines before step ``j + 1``
+    (``lines_t``: the lines transposed, (n, L)): a spinning sensor's step ``j`` is one beam's ring,
+    contiguous in memory, where one line after the other jumped a ring's length at every step."""
+    n_steps, n_lines = lines_t.shape
     ground = np.zeros(xyz.shape[0], np.bool_)
     height = np.full(n_lines, zd)
-    for li in range(n_lines):
-        last = -1
-        for j in range(lines.shape[1]):
-            s = lines[li, j]
+    last = np.full(n_lines, -1, np.int64)
+    last_rho = np.zeros(n_lines)
+    ended = np.zeros(n_lines, np.bool_)
+    for j in range(n_steps):
+        for li in range(n_lines):
+            if ended[li]:
+                continue
+            s = lines_t[j, li]
             if s < 0:
-                break
+                ended[li] = True
+                continue
             if not valid[s]:
                 continue
-            if last < 0:
+            rho = np.sqrt(xyz[s, 0] ** 2 + xyz[s, 1] ** 2)
+            k = last[li]
+            if k < 0:
                 if abs(xyz[s, 2] - zd) < tol:
                     ground[s] = True
                     height[li] = xyz[s, 2]
-                    last = s
+                    last[li] = s
+                    last_rho[li] = rho
                 continue
-            dh = np.sqrt(xyz[s, 0] ** 2 + xyz[s, 1] ** 2) - np.sqrt(xyz[last, 0] ** 2 + xyz[last, 1] ** 2)
-            if dh > 0 and abs(xyz[s, 2] - xyz[last, 2]) <= min(slope * dh, max_step) + eps:
+            dh = rho - last_rho[li]
+            if dh > 0 and abs(xyz[s, 2] - xyz[k, 2]) <= min(slope * dh, max_step) + eps:
                 ground[s] = True
-                last = s
+                last[li] = s
+                last_rho[li] = rho
     return ground, height
 
 
@@ -579,8 +591,9 @@ def column_ground(
     wide = modes[counts >= min_share * counts.sum()]
     zd = float(wide.min()) if len(wide) else float(modes[0])
     ground, height = _column_ground(
-        xyz, valid, lines, zd, rel_tolerance * abs(zd), np.tan(np.radians(max_slope)), max_step, 0.05
-    )
+        xyz, valid, np.ascontiguousarray(lines.T), zd, rel_tolerance * abs(zd), np.tan(np.radians(max_slope)),
+        max_step, 0.05,
+    )  # fmt: skip
     return ground.reshape(scan.shape), height, zd
 
 
@@ -707,6 +720,18 @@ def grazing_links(seg, valid, xyz, min_rise, max_run):
 
 
 @njit(cache=True, nogil=True)
+def segment_counts(seg, n, mask):
+    """Per id ``0..n`` of ``seg`` (rows, cols): how many of its slots are set in ``mask``."""
+    cnt = np.zeros(n + 1, np.int64)
+    R, C = seg.shape
+    for r in range(R):
+        for c in range(C):
+            if mask[r, c]:
+                cnt[seg[r, c]] += 1
+    return cnt
+
+
+@njit(cache=True, nogil=True)
 def segment_tops(seg, n, height, vegetation):
     """Per id ``0..n`` of ``seg`` (rows, cols): the flat index of the highest return of the id
     (the last in flat order among equal heights; 0 for an id without slots), the number of its
@@ -739,7 +764,7 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     cols = seg_o.shape[1]
     top_at, cnt_all, veg = segment_tops(seg_o, n, height, vegetation)
     if resolved is not None:  # the share over the returns the column statistic resolves, if enough of them
-        cnt_all = np.bincount(seg_o[resolved], minlength=n + 1)[: n + 1]
+        cnt_all = segment_counts(seg_o, n, resolved)
         veg = np.where(cnt_all >= p.min_points, veg, 0.0)
     top_gap = rng.ravel()[top_at] * np.abs(gaps[top_at // cols])
     veg_share = veg / np.maximum(cnt_all, 1)
