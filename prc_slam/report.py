@@ -17,6 +17,9 @@ FIELDS = ("ate_rmse_m", "rpe_trans_m", "kitti_trans_pct", "ms_per_frame", "point
 
 #: said of a class a method never outputs, instead of scores that are 0 (or undefined) by construction
 NOT_OUTPUT = "not output by this method"
+#: a class the method outputs while the reference has none of it (SemanticKITTI has no curbs): its
+#: precision is 0 by construction, every such label counting as wrong
+NOT_IN_REFERENCE = "none in the reference"
 
 
 def _fmt(v: Any) -> str:
@@ -59,12 +62,17 @@ def class_rows(per_class: dict[str, dict[str, Any]], fmt) -> list[tuple[str, int
     """Rows ``(class, support, precision, recall, f1)`` of a per-class score table, scores
     formatted by ``fmt``. A class the method never outputs (no precision: nothing labelled so,
     while the reference has points of it) is named so, its scores ``-`` (its recall and F1 are 0
-    by construction, not by a mistake); a class it outputs but gets wrong keeps its 0."""
+    by construction, not by a mistake); a class it outputs while the reference has none of it is
+    named so too (its precision 0 by construction); a class it outputs but gets wrong keeps its 0."""
     rows = []
     for name, s in per_class.items():
         support = int(s.get("support") or 0)
         if s.get("precision") is None and support:
             rows.append((f"{name} ({NOT_OUTPUT})", support, "-", "-", "-"))
+        elif not support and s.get("precision") is not None:  # labelled so, but not a class of the reference
+            rows.append(
+                (f"{name} ({NOT_IN_REFERENCE})", support, *(fmt(s.get(k)) for k in ("precision", "recall", "f1")))
+            )
         else:
             rows.append((name, support, *(fmt(s.get(k)) for k in ("precision", "recall", "f1"))))
     return rows

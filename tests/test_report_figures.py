@@ -97,6 +97,23 @@ def test_a_class_never_output_is_said_so_and_a_wrong_one_keeps_its_zero():
         assert NOT_OUTPUT not in rows["ground"]
 
 
+def test_a_class_the_reference_never_has_is_said_so():
+    """A detector's curbs scored against a reference without curbs (SemanticKITTI): its precision
+    is 0 by construction, and the row says why instead of a bare 0.000."""
+    from prc_slam.cli.common import class_table
+    from prc_slam.report import NOT_IN_REFERENCE, classification_section
+
+    ref = np.array([L.GROUND] * 80 + [L.BUILDING] * 20, np.uint8)
+    pred = np.array([L.GROUND] * 80 + [L.CURB] * 5 + [L.BUILDING] * 15, np.uint8)
+    acc = ConfusionAccumulator()
+    acc.add(ref, pred)
+    metrics = {"per_class": acc.per_class([L.GROUND, L.BUILDING, L.CURB])}
+    for text in (rendered(class_table(metrics, "t")), classification_section(metrics, "t")):
+        rows = table_rows(text)
+        assert NOT_IN_REFERENCE in rows["curb"], rows["curb"]
+        assert NOT_IN_REFERENCE not in rows["building"] and NOT_IN_REFERENCE not in rows["ground"]
+
+
 def test_the_first_frame_gives_no_eta_and_the_next_ones_leave_it_out(monkeypatch):
     """The first frame takes 60 s (numba compiling), the others 0.5 s: no ETA on the first
     line; from the second on the ETA is the remaining frames at 0.5 s (49 s for 98), not at the
