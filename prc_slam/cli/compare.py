@@ -148,16 +148,26 @@ def compare(
     cfg.odometry.deskew = cfg.odometry.deskew and deskew
     viewer = Viewer(
         rrd, connect, serve_web, log_every, serve_seconds=serve_seconds, map_voxel=map_voxel, web_port=web_port,
-        grpc_port=grpc_port,
+        grpc_port=grpc_port, bind=bind,
     )  # fmt: skip
-    with progress() as reporter:
-        run, prc_labels = run_odometry(
-            input, cfg, names, fmt=fmt, max_frames=max_frames, stride=stride, online=online, score_prc=True,
-            viewer=viewer,
-            reporter=reporter, keep_labels_every=mapclass_every if mapclass else None,
-            **input_options(topic, meta, model, rows, cols, organize=organize),
-        )  # fmt: skip
-    written = run.written + write_outputs(run, cfg, out, f"Odometry comparison on {input}")
+    title = f"Odometry comparison on {input}"
+    try:
+        with progress() as reporter:
+            run, prc_labels = run_odometry(
+                input, cfg, names, fmt=fmt, max_frames=max_frames, stride=stride, online=online, score_prc=True,
+                viewer=viewer,
+                reporter=reporter, keep_labels_every=mapclass_every if mapclass else None,
+                **input_options(topic, meta, model, rows, cols, organize=organize),
+            )  # fmt: skip
+    except Interrupted as stop:  # the frames done are written, marked interrupted
+
+        def write(part) -> list[str]:
+            write_outputs(part, cfg, out, title)
+            k = part.metrics["interrupted_at_frame"]
+            return [str(out / "report.md"), "metrics.json", "config.yaml", f"trajectories ({k} frames)"]
+
+        raise fail(interrupted_line(stop, write), 130) from None
+    written = run.written + write_outputs(run, cfg, out, title)
     warn_failed(run.metrics)
     print_table(variant_table(run.metrics, f"odometry on {input}"))
     if run.prc is not None and "per_class" in run.prc:
