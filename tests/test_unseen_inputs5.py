@@ -1,4 +1,4 @@
-"""Recording formats and sensor modes the project did not read at first (after ``test_unseen_inputs.py`` .. ``test_unseen_inputs4.py``): each test generates a small input
+"""Recording formats and sensor modes the project did not read at first: each test generates a small input
 in ``tmp_path`` with the format's own library (rosbags, ouster-sdk) or from the format's bytes
 (Velodyne, Hesai packets) and checks that the readers give the right points or a clear one-line
 error.
