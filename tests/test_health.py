@@ -117,7 +117,9 @@ def _run(name: str, poses: list[np.ndarray], suspicious: list[bool]) -> VariantR
     health = [FrameHealth(source_points=1000, inliers=600, mean_residual_m=0.2, threshold_m=0.5) for _ in range(n)]
     for h, s in zip(health, suspicious, strict=True):
         h.suspicious, h.why = s, "disagrees by 9 m" if s else ""
-    odometry = SimpleNamespace(poses=poses, health=health, health_ms=[0.1] * n, coasted=[])
+    odometry = SimpleNamespace(
+        poses=poses, health=health, health_ms=[0.1] * n, coasted=[], degenerate_frames=[], conditioning=[None] * n
+    )
     run = VariantRun(name, odometry)
     run.ms = {"prc": [1.0] * n, "filter": [1.0] * n, "icp": [5.0] * n}
     run.hidden = [0.0] * n
