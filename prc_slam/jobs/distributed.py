@@ -39,15 +39,10 @@ DASHBOARD_PORT = 8787
 
 
 def _is_loopback(address: str) -> bool:
-    """Whether ``address`` is this machine's loopback only."""
-    import ipaddress
+    """Whether ``address`` is this machine's loopback only (one test for everything served)."""
+    from prc_slam.viz.sink import is_loopback
 
-    if address == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(address).is_loopback
-    except ValueError:
-        return False
+    return is_loopback(address)
 
 
 def default_workers() -> int:
