@@ -34,14 +34,14 @@ def _open_sim(path: Path, options: dict[str, Any]) -> Dataset:
 def _is_velodyne_pcap(path: Path) -> bool:
     if path.is_dir() or path.suffix.lower() not in _PCAP_SUFFIXES:
         return False
-    from data_tools.velodyne_pcap import check_capture, looks_like_velodyne
+    from data_tools.formats.velodyne_pcap import check_capture, looks_like_velodyne
 
     check_capture(path)  # an empty or foreign file says so (not "no Ouster metadata")
     return looks_like_velodyne(path)
 
 
 def _open_velodyne_pcap(path: Path, options: dict[str, Any]) -> Dataset:
-    from data_tools.velodyne_pcap import VelodynePcapSequence
+    from data_tools.formats.velodyne_pcap import VelodynePcapSequence
 
     model = options.get("model")
     return VelodynePcapSequence(path, model=None if model is None else str(model))
@@ -51,8 +51,8 @@ def _is_ouster_pcap(path: Path) -> bool:
     """A capture that is not a Velodyne one (asked first): an Ouster one, whose metadata json must be found."""
     if path.is_dir() or path.suffix.lower() not in _PCAP_SUFFIXES:
         return False
-    from data_tools.ouster_pcap import find_metadata
-    from data_tools.velodyne_pcap import check_not_hesai
+    from data_tools.formats.ouster_pcap import find_metadata
+    from data_tools.formats.velodyne_pcap import check_not_hesai
 
     check_not_hesai(path)
     find_metadata(path)  # a pcap without its json: one-line error naming the file
@@ -60,7 +60,7 @@ def _is_ouster_pcap(path: Path) -> bool:
 
 
 def _open_ouster_pcap(path: Path, options: dict[str, Any]) -> Dataset:
-    from data_tools.ouster_pcap import OusterPcapSequence
+    from data_tools.formats.ouster_pcap import OusterPcapSequence
 
     meta = options.get("meta")
     return OusterPcapSequence(
@@ -69,7 +69,7 @@ def _open_ouster_pcap(path: Path, options: dict[str, Any]) -> Dataset:
 
 
 def _is_recording(path: Path) -> bool:
-    from data_tools.rosbag import bag_kind
+    from data_tools.formats.rosbag import bag_kind
 
     return bag_kind(path) is not None  # .bag, .db3, .mcap, a rosbag2 folder or metadata.yaml, split .bag files
 
@@ -93,7 +93,7 @@ ROSBAG = Reader("rosbag", ("topic", *ORGANISER_OPTIONS), _is_recording, _open_re
 def readers() -> tuple[Reader, ...]:
     """Every reader, in the order :func:`detect_format` asks them (a simulated sequence before a
     recording folder before a KITTI directory; a Velodyne capture before an Ouster one)."""
-    from data_tools import kitti, ouster, pcd
+    from data_tools.formats import kitti, ouster, pcd
 
     return (SIM, ROSBAG, kitti.READER, ouster.READER, VELODYNE_PCAP, OUSTER_PCAP, pcd.READER, pcd.LAS_READER)
 
@@ -133,10 +133,10 @@ def open_dataset(path: str | Path, fmt: str | None = None, **options: object) ->
 
 
 def open_recording(path: str | Path, topic: str | None = None, *, organizer: Any = None) -> Dataset:
-    """A ROS recording as a dataset: its ``PointCloud2`` topic (:class:`~data_tools.rosbag.RosbagSequence`),
+    """A ROS recording as a dataset: its ``PointCloud2`` topic (:class:`~data_tools.formats.rosbag.RosbagSequence`),
     or, when it holds no PointCloud2 but raw Velodyne packets (``velodyne_msgs/VelodyneScan``), their
-    sweeps decoded (:class:`~data_tools.velodyne_pcap.VelodyneScanSequence`)."""
-    from data_tools.rosbag import RosbagSequence, velodyne_scan_topics
+    sweeps decoded (:class:`~data_tools.formats.velodyne_pcap.VelodyneScanSequence`)."""
+    from data_tools.formats.rosbag import RosbagSequence, velodyne_scan_topics
 
     try:
         return RosbagSequence(path, topic, organizer=organizer)
@@ -148,7 +148,7 @@ def open_recording(path: str | Path, topic: str | None = None, *, organizer: Any
             raise DataError(
                 f"{path}: {len(scans)} VelodyneScan topics, choose one with --topic: {', '.join(sorted(scans))}"
             ) from None
-        from data_tools.velodyne_pcap import VelodyneScanSequence
+        from data_tools.formats.velodyne_pcap import VelodyneScanSequence
 
         if organizer is not None:
             log.warning("%s: --rows/--cols/--organize do not apply to raw Velodyne packets; ignored", path)

@@ -13,6 +13,7 @@ never sampled away.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -274,3 +275,54 @@ def _code(name: str, field: str, size: float) -> int:
     if size < 0:
         raise ValueError(f"{field} cell of {name!r} is negative ({size})")
     return L.NAME_TO_CODE[name]
+
+
+def parse_keep_labels(values: Sequence[str | int] | str | None) -> list[int] | None:
+    """Label names or codes (``"ground,building"``, ``["2", "vehicle"]``) → codes; None stays None."""
+    if values is None:
+        return None
+    if isinstance(values, str):
+        values = [values]
+    codes: list[int] = []
+    for v in values:
+        for item in str(v).split(","):
+            item = item.strip()
+            if not item:
+                continue
+            if item.isdigit():
+                code = int(item)
+                if code not in L.CODE_TO_NAME:
+                    raise ValueError(f"--keep-labels: unknown label code {code}; known: {sorted(L.CODE_TO_NAME)}")
+            elif item in L.NAME_TO_CODE:
+                code = L.NAME_TO_CODE[item]
+            else:
+                raise ValueError(f"--keep-labels: unknown label {item!r}; choose from {', '.join(L.NAME_TO_CODE)}")
+            codes.append(code)
+    if not codes:
+        raise ValueError("--keep-labels names no label")
+    return sorted(set(codes))
+
+
+def choose_points(
+    points: np.ndarray,
+    labels: np.ndarray,
+    config: FilterConfig,
+    *,
+    one_sided: np.ndarray | None = None,
+    keep_labels: Sequence[int] | None = None,
+) -> np.ndarray:
+    """Mask of the points written to the filtered stream (input order).
+
+    The filter policy of ``config`` (or, with ``keep_labels``, the listed classes only); points
+    labelled ``no_return`` or with non-finite coordinates are never kept.
+    """
+    points = np.asarray(points)
+    labels = np.asarray(labels, dtype=np.uint8)
+    finite = np.isfinite(points).all(axis=1)
+    if keep_labels is not None:
+        keep = np.isin(labels, np.asarray(list(keep_labels), dtype=np.uint8))
+    else:
+        policy = config.model_copy(update={"drop": sorted(set(config.drop) | {L.NO_RETURN})})
+        safe = np.where(finite[:, None], points, 0.0)
+        keep = filter_points(safe, labels, policy, one_sided).keep
+    return keep & finite & (labels != L.NO_RETURN)

@@ -22,11 +22,11 @@ from typing import Any, Protocol
 import numpy as np
 
 from prc_slam import labels as L
-from prc_slam.frame_process import ForkedNextFrame, FrameProcessEnded, can_fork
 from prc_slam.prc import PRCStream, prc_block
 from prc_slam.prc.config import AutoPreset, PRCConfig
 from prc_slam.prc.ground import GroundState, upside_down
 from prc_slam.scan import Scan, ScanError, SpinningSensor
+from prc_slam.util.frame_process import ForkedNextFrame, FrameProcessEnded, can_fork
 
 log = logging.getLogger("prc_slam.pipeline")
 
@@ -300,7 +300,7 @@ class NextFrame:
         return self.seconds
 
     def close(self) -> None:
-        """Nothing to end (:class:`~prc_slam.frame_process.ForkedNextFrame` ends its process)."""
+        """Nothing to end (:class:`~prc_slam.util.frame_process.ForkedNextFrame` ends its process)."""
 
     def take(self) -> ClassifiedFrame | None:
         """The next frame (None after the last), made now unless :meth:`start` began it."""
@@ -449,7 +449,7 @@ class Pipeline:
     Examples
     --------
     >>> from prc_slam import Pipeline, PRCConfig
-    >>> from prc_slam.scoring import PRCScorer
+    >>> from prc_slam.evaluation.scoring import PRCScorer
     >>> scorer = PRCScorer()
     >>> result = Pipeline(prc=PRCConfig.preset("multibeam"), sinks=[scorer]).run(scans)  # doctest: +SKIP
     >>> scorer.metrics(result)["per_class"]["ground"]["recall"]  # doctest: +SKIP
@@ -600,7 +600,7 @@ class Pipeline:
         """The frames of ``ahead``, read, organised and classified: on a second thread when the
         odometry stage makes the next frame beside its registration, in a forked process when
         its ``odometry.overlap_process`` says so and a fork is safe here
-        (:mod:`prc_slam.frame_process`: KISS-ICP holds the GIL while it registers)."""
+        (:mod:`prc_slam.util.frame_process`: KISS-ICP holds the GIL while it registers)."""
 
         def make() -> NextFrame:
             return NextFrame(self._classified(self._readable(ahead, result)), ahead)

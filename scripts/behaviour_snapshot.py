@@ -178,10 +178,10 @@ def _write_compressed_pcd(path: Path, fields: dict[str, np.ndarray]) -> None:
 
 def generate_inputs(root: Path) -> dict[str, Path]:
     """Write the small recordings of simulated drives; returns name -> path."""
-    from data_tools.pcd import write_pcd
-    from data_tools.rosbag import cloud_from_records
-    from data_tools.stream_out import RosCloudWriter
-    from data_tools.writers import write_las, write_ply
+    from data_tools.formats.pcd import write_pcd
+    from data_tools.formats.rosbag import cloud_from_records
+    from data_tools.formats.stream_out import RosCloudWriter
+    from data_tools.formats.writers import write_las, write_ply
 
     root.mkdir(parents=True, exist_ok=True)
     out: dict[str, Path] = {}

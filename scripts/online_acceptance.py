@@ -2,7 +2,7 @@
 
 For every simulated spinning sensor and seed (``prc-slam simulate --scene street``, made under
 ``--sim-dir`` when missing) and, with ``--kitti``, KITTI 00 frames 0-2: vehicle instances found
-and point precision / recall / share labelled vegetation per range band (``prc_slam.scoring``),
+and point precision / recall / share labelled vegetation per range band (``prc_slam.evaluation.scoring``),
 online ground and curb F1, and whether each criterion holds. ``--set name=value`` overrides a
 ``SpinningCarParams`` field (the sensitivity table of docs/online-sensitivity.md); ``--paper``
 runs ``OnlineDetector.paper()``.
@@ -20,11 +20,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from prc_slam.evaluation.scoring import InstanceBands, OnlineScorer
 from prc_slam.jobs.common import open_input
 from prc_slam.online import CoarseParams, OnlineDetector
 from prc_slam.online.spinning import SpinningCarParams
 from prc_slam.pipeline import Pipeline
-from prc_slam.scoring import InstanceBands, OnlineScorer
 
 SENSORS = ("hdl64", "hdl32", "vlp16", "os1-64", "os0-128", "os2-128")
 #: sensors the ground / curb criteria apply to (vlp16 curbs are reported only)
@@ -89,7 +89,7 @@ def summary(m: dict[str, Any]) -> dict[str, Any]:
 def speed(frames: int = 10, rounds: int = 8) -> dict[str, float]:
     """Points per second of the default detector and of the configuration before issue 38 (Sec. 5 (a)
     ground on spinning sensors, every top on the highest beam going on upward, any high return) on
-    the bench's simulated hdl64 urban sweeps (``prc_slam.benchmark.bench_online``), alternating in one
+    the bench's simulated hdl64 urban sweeps (``prc_slam.jobs.bench.bench_online``), alternating in one
     process; each figure the best of ``rounds``."""
     import time
 

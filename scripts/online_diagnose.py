@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from prc_slam import labels as L
+from prc_slam.evaluation.scoring import RANGE_BANDS_M, band_name
 from prc_slam.jobs.common import open_input
 from prc_slam.online import OnlineDetector
 from prc_slam.online.spinning import SpinningCarParams
-from prc_slam.scoring import RANGE_BANDS_M, band_name
 
 
 def failed_tests(f: dict[str, np.ndarray], k: int, p: SpinningCarParams) -> list[str]:

@@ -20,7 +20,7 @@ from data_tools import open_dataset
 from data_tools.sim.dataset import write_sequence
 from data_tools.sim.simulator import SimConfig, Simulator
 from prc_slam import labels as L
-from prc_slam.evaluation import ate_rmse, kitti_errors
+from prc_slam.evaluation.metrics import ate_rmse, kitti_errors
 
 CLASSES = [L.GROUND, L.CURB, L.BUILDING, L.VEGETATION, L.TRUNK, L.VEHICLE, L.POLE, L.NOISE, L.UNCLASSIFIED]
 KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti00"

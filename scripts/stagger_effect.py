@@ -20,11 +20,11 @@ import numpy as np
 
 from data_tools import open_dataset
 from prc_slam import labels as L
-from prc_slam.evaluation import ConfusionAccumulator
+from prc_slam.evaluation.metrics import ConfusionAccumulator
+from prc_slam.evaluation.scoring import SOLID_CLASSES
 from prc_slam.prc.algorithm import prc_block, warm_up
 from prc_slam.prc.config import PRCConfig
 from prc_slam.prc.ground import GroundState
-from prc_slam.scoring import SOLID_CLASSES
 
 ROOT = Path(__file__).resolve().parents[2] / "shared" / "data"
 

@@ -106,7 +106,7 @@ def test_simulate_then_classify(tmp_path):
 
 
 def test_ply_writer(tmp_path):
-    from data_tools.writers import write_ply
+    from data_tools.formats.writers import write_ply
 
     xyz = np.arange(12, dtype=np.float32).reshape(4, 3)
     write_ply(tmp_path / "c.ply", xyz, np.array([2, 5, 6, 7], np.uint8))
@@ -133,7 +133,7 @@ def _street_cloud(n_side: int = 200) -> np.ndarray:
 
 
 def test_mapclass_on_cloud_files_segregates_every_point(tmp_path):
-    from data_tools.writers import write_ply
+    from data_tools.formats.writers import write_ply
 
     pts = _street_cloud()
     write_ply(tmp_path / "map.ply", pts)
@@ -195,7 +195,7 @@ def m_code(name: str) -> int:
 
 
 def test_mapclass_reports_bad_files_cleanly(tmp_path):
-    from data_tools.writers import write_las
+    from data_tools.formats.writers import write_las
 
     write_las(tmp_path / "a.las", _street_cloud(20), np.zeros(20 * 20 + 20 * 80, np.uint8))
     data = (tmp_path / "a.las").read_bytes()

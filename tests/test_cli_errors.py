@@ -202,7 +202,7 @@ def test_ctrl_c_inside_a_native_callback_is_delivered_again(monkeypatch):
     interrupt is sent again shortly after, once the callback has returned; elsewhere it is raised."""
     from types import SimpleNamespace
 
-    from prc_slam import launcher
+    from prc_slam import __main__ as launcher
 
     sent = []
     monkeypatch.setattr(launcher, "REDELIVER_S", 0.0)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prc_slam.odometry.classaware import GroupVoxelMap
 from prc_slam.odometry.degeneracy import DegeneracyConfig, analyse, conditioning
+from prc_slam.odometry.group_map import GroupVoxelMap
 from prc_slam.odometry.kiss import KissOdometry, OdometryConfig
 
 HALF_WIDTH, FLOOR, CEILING = 4.0, -1.7, 3.8

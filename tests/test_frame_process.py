@@ -1,4 +1,4 @@
-"""The next frame made in a forked process (``prc_slam.frame_process``): the same run as on a
+"""The next frame made in a forked process (``prc_slam.util.frame_process``): the same run as on a
 thread, errors, logs, warnings and the source's bookkeeping passed back, the child ended."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from prc_slam.frame_process import ForkedNextFrame, FrameProcessEnded, can_fork
+from prc_slam.util.frame_process import ForkedNextFrame, FrameProcessEnded, can_fork
 
 pytestmark = pytest.mark.skipif(os.name != "posix", reason="fork is POSIX only")
 
@@ -104,7 +104,7 @@ def test_a_child_that_dies_is_an_error_raised_by_take():
 def _compare(root: Path, out: Path, *extra: str) -> tuple[dict, str]:
     """``prc-slam compare`` in a fresh interpreter (numba's threads not yet started: the fork is
     taken there, whatever earlier tests in this process did)."""
-    cmd = [sys.executable, "-m", "prc_slam.launcher", "compare", str(root), "--variants", "raw,prc", "--out", str(out)]
+    cmd = [sys.executable, "-m", "prc_slam.__main__", "compare", str(root), "--variants", "raw,prc", "--out", str(out)]
     res = subprocess.run([*cmd, *extra], capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stdout + res.stderr
     return json.loads((out / "metrics.json").read_text()), res.stdout + res.stderr

@@ -9,18 +9,18 @@ import numpy as np
 import pytest
 
 from data_tools import open_dataset
+from data_tools.formats.trajectory_io import write_kitti_poses, write_tum_poses
 from data_tools.sim.dataset import write_sequence
 from data_tools.sim.simulator import SimConfig, Simulator
-from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
 from prc_slam import labels as L
 from prc_slam.config import Config, PRCConfig
 from prc_slam.jobs.odometry import trajectory_file
+from prc_slam.jobs.report import write_compare_outputs
 from prc_slam.odometry import classaware
 from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry, GroupVoxelMap, icp
 from prc_slam.odometry.compare import _without, run_compare
 from prc_slam.odometry.guard import DivergenceMonitor, FrameHealth, GuardConfig, OdometryFailure, check_pose
 from prc_slam.odometry.kiss import KissOdometry, OdometryConfig
-from prc_slam.report import write_compare_outputs
 
 
 def _translation(x: float, yaw_deg: float = 0.0) -> np.ndarray:

@@ -11,12 +11,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
+from data_tools.formats.trajectory_io import write_kitti_poses, write_tum_poses
 from prc_slam.cli.compare import warn_failed
 from prc_slam.config import Config
+from prc_slam.jobs.report import write_compare_outputs
 from prc_slam.odometry.compare import CompareResult, VariantRun
 from prc_slam.odometry.guard import FrameHealth, GuardConfig, VariantHealth, judge_variant, no_trust_line
-from prc_slam.report import write_compare_outputs
 
 CFG = GuardConfig()
 

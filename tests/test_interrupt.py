@@ -135,7 +135,7 @@ def test_sigterm_ends_compare_like_ctrl_c_and_leaves_no_process(drive, tmp_path)
 _SECOND_CTRL_C = """
 import os, signal, sys
 import prc_slam.jobs.odometry as job
-from prc_slam.launcher import main
+from prc_slam.__main__ import main
 
 written = job.write_outputs
 
@@ -164,7 +164,7 @@ def test_a_second_ctrl_c_while_writing_ends_the_process(drive, tmp_path):
 
 _PARENT = """
 import os, sys, time
-from prc_slam.frame_process import ForkedNextFrame
+from prc_slam.util.frame_process import ForkedNextFrame
 
 class Slow:  # frames that take a while, as a long sweep read would
     charged, seconds = (), 0.0
@@ -203,8 +203,7 @@ import sys
 import numpy as np
 import rerun as rr
 import prc_slam.cli
-from prc_slam import launcher
-
+from prc_slam import __main__ as launcher
 def blocked():  # a stream to a viewer that is not there: the sender blocks once its queue is full
     rec = rr.RecordingStream("blocked")
     rec.set_sinks(rr.GrpcSink(f"rerun+http://127.0.0.1:{sys.argv[1]}/proxy"))

@@ -10,9 +10,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: application modules of prc_slam (commands, their jobs, the live receiver that opens sockets and
 #: readers): they may import everything below them
-APPLICATION = ("prc_slam.jobs", "prc_slam.live", "prc_slam.cli", "prc_slam.preprocess", "prc_slam.benchmark")
+APPLICATION = ("prc_slam.jobs", "prc_slam.live", "prc_slam.cli", "prc_slam.preprocess", "prc_slam.jobs.bench")
 #: the console entry point, above everything
-ENTRY = ("prc_slam.launcher",)
+ENTRY = ("prc_slam.__main__",)
 VIEWER = ("prc_slam.viz",)
 
 

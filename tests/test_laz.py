@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from data_tools import DataError
-from data_tools.clouds import cloud_chunks, cloud_size, laz_backend
-from data_tools.writers import ClassSplitWriter, write_las
+from data_tools.formats.clouds import cloud_chunks, cloud_size, laz_backend
+from data_tools.formats.writers import ClassSplitWriter, write_las
 
 
 def cloud(n: int = 5000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

@@ -27,9 +27,9 @@ LOOPBACK = "127.0.0.1"
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory) -> Path:
     """A simulated VLP-16 drive of 6 sweeps as a Velodyne capture."""
+    from data_tools.formats.velodyne_packets import SimCapture
     from data_tools.sim.dataset import write_sequence
     from data_tools.sim.simulator import SimConfig, Simulator
-    from data_tools.velodyne_packets import SimCapture
 
     root = tmp_path_factory.mktemp("live")
     sim = Simulator(SimConfig(sensor="vlp16", frames=6, clockwise=True, speed=1.3))
@@ -144,7 +144,7 @@ def test_garbage_datagrams_skipped_and_counted(capture, tmp_path):
 def test_second_sensor_on_the_port_is_an_error(capture, tmp_path):
     def second(rx):
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            from data_tools.velodyne_pcap import Capture
+            from data_tools.formats.velodyne_pcap import Capture
 
             for k, (_t, _src, payload) in enumerate(Capture(capture)):
                 if k >= 40:
@@ -229,7 +229,7 @@ OUSTER = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ouste
 def test_ouster_packets_labelled_as_offline(tmp_path):
     """A shared Ouster capture replayed twice into ouster://: each sweep's PRC labels are those of
     the offline reading of the capture."""
-    from data_tools.ouster_pcap import OusterPcapSequence
+    from data_tools.formats.ouster_pcap import OusterPcapSequence
     from prc_slam.jobs.sinks import LabelFiles
     from prc_slam.pipeline import Pipeline
 

@@ -25,7 +25,7 @@ from prc_slam.mapclass.objects import (
     segment_voxels,
 )
 from prc_slam.mapclass.tiles import array_chunks, classify_tiled
-from prc_slam.voxels import VoxelGrid
+from prc_slam.util.voxels import VoxelGrid
 
 RNG = np.random.default_rng(0)
 
@@ -119,7 +119,7 @@ def test_voxel_grid_grows_its_table():
 def test_merge_walk_neighbours_equal_the_hash_probes(n, spread, flat, seed):
     """The sorted-key merge walk lists the same neighbours in the same order as the 27 probes,
     so sums, components and region growing are bit-identical (also over huge extents)."""
-    from prc_slam.voxels import _hash_neighbours, _merge_neighbours, radix_argsort
+    from prc_slam.util.voxels import _hash_neighbours, _merge_neighbours, radix_argsort
 
     rng = np.random.default_rng(seed)
     pts = rng.uniform(-spread, spread, size=(n, 3))
@@ -131,7 +131,7 @@ def test_merge_walk_neighbours_equal_the_hash_probes(n, spread, flat, seed):
     extent = (g.coords.max(axis=0) - g.coords.min(axis=0) + 3).astype(float) if n else np.ones(3)
     if np.prod(extent) >= 2.0**62:  # linear keys would overflow int64: no lists, the grid probes
         assert len(ms) == 0
-        import prc_slam.voxels as V
+        import prc_slam.util.voxels as V
 
         V.MERGE_MIN_VOXELS, keep = 0, V.MERGE_MIN_VOXELS
         try:
@@ -147,7 +147,7 @@ def test_merge_walk_neighbours_equal_the_hash_probes(n, spread, flat, seed):
 
 
 def test_large_grid_sums_components_and_segments_as_with_probes():
-    from prc_slam.voxels import _components, _neighbourhood_sum
+    from prc_slam.util.voxels import _components, _neighbourhood_sum
 
     pts = np.concatenate([RNG.uniform([0, 0, 0], [60, 60, 0.5], (60000, 3)), RNG.uniform(-5, 70, (8000, 3))])
     g = VoxelGrid.build(pts, 0.4)
@@ -180,7 +180,7 @@ def test_flat_grid_is_the_grid_of_the_points_on_z_0():
 def test_compact_build_is_the_int64_build(scale):
     """The int32 build gives the int64 build's voxels, order and table slots; voxel
     coordinates beyond int32 (scale 1e9 at 0.3 m) take the int64 build, same grid."""
-    from prc_slam.voxels import _build, voxel_counts
+    from prc_slam.util.voxels import _build, voxel_counts
 
     pts = RNG.normal(0, 5, size=(6000, 3)) * scale
     pts[1000:2000] = pts[999]  # runs in one voxel (the previous-point shortcut)
@@ -198,7 +198,7 @@ def test_compact_build_is_the_int64_build(scale):
 def test_flat_grid_through_a_dense_plane_or_the_hash(monkeypatch, spread):
     """A compact x-y box goes through the dense plane, a sparse one (two clusters far apart)
     through the hash: the same cells either way, and the planar kernels answer the same."""
-    import prc_slam.voxels as V
+    import prc_slam.util.voxels as V
     from prc_slam.mapclass.objects import height_above_ground, under_crown
 
     pts = RNG.uniform(-20, 20, size=(4000, 3))
@@ -655,7 +655,7 @@ def urban_map():
 
 
 def test_simulated_urban_map(urban_map):
-    from prc_slam.mapclass_run import score_map
+    from prc_slam.jobs.mapclass import score_map
 
     res = classify_map(urban_map.points)
     s = score_map(res.labels, urban_map.attributes["ref"], urban_map.attributes["inst"])

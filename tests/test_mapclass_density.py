@@ -12,11 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from prc_slam import labels as L
+from prc_slam.jobs.mapclass import run_mapclass, score_map
 from prc_slam.mapclass import MapClassConfig, classify_map, paper_config
 from prc_slam.mapclass.classify import DensityWarning
 from prc_slam.mapclass.density import outlier_threshold, size_for, surface_density
 from prc_slam.mapclass.tiles import array_chunks, classify_tiled
-from prc_slam.mapclass_run import run_mapclass, score_map
 
 RNG = np.random.default_rng(7)
 
@@ -251,7 +251,7 @@ def test_als_urban_classified_at_its_density(als_urban):
 def test_laz_round_trip_keeps_points_truth_and_returns(als_urban, tmp_path):
     import laspy
 
-    from data_tools.clouds import cloud_chunks, cloud_size
+    from data_tools.formats.clouds import cloud_chunks, cloud_size
     from data_tools.sim.airborne import read_truth, write_cloud
 
     path = write_cloud(als_urban, tmp_path / "als.laz")
@@ -267,7 +267,7 @@ def test_laz_round_trip_keeps_points_truth_and_returns(als_urban, tmp_path):
     np.testing.assert_array_equal(np.asarray(las.number_of_returns), als_urban.number_of_returns)
     assert (tmp_path / "als.laz.json").exists()
     # the class split written as LAZ
-    from data_tools.writers import ClassSplitWriter
+    from data_tools.formats.writers import ClassSplitWriter
 
     labels = classify_map(xyz).labels
     with ClassSplitWriter(tmp_path / "split", combined="map_classified.laz") as w:

@@ -133,7 +133,7 @@ def test_plot_of_a_run_too_short_to_align_warns_nothing(short_drive, tmp_path, f
     """One or two frames: nothing to align for the error plot, and no matplotlib warning."""
     import warnings
 
-    from prc_slam.report import plot_trajectories
+    from prc_slam.jobs.report import plot_trajectories
 
     result = run_compare([short_drive[i] for i in range(frames)], Config(), ["raw"])
     with warnings.catch_warnings():

@@ -113,7 +113,7 @@ def test_detect_command_writes_labels_json_and_recording(tmp_path):
 
 
 def test_vehicle_objects_found_hand_computed():
-    from prc_slam.evaluation import objects_found
+    from prc_slam.evaluation.metrics import objects_found
 
     gt = np.array([[65, 65, 65, 2], [65, 65, 0, 0], [65, 0, 0, 0]])
     inst = np.array([[1, 1, 1, 0], [2, 2, 0, 0], [3, 0, 0, 0]])

@@ -446,7 +446,7 @@ def test_relabel_is_lookup(seed, rows, cols, n):
 def test_union_find_components_are_the_graphs(seed, n, m):
     """Every edge's ends share a component id, ids count up in the order of each component's
     first node, and two nodes share an id only when a path of edges joins them."""
-    from prc_slam import unionfind as uf
+    from prc_slam.util import unionfind as uf
 
     rng = np.random.default_rng(seed)
     a, b = rng.integers(0, n, m), rng.integers(0, n, m)

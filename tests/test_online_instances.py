@@ -1,4 +1,4 @@
-"""Per-instance vehicle scores by range band (``prc_slam.scoring.InstanceBands``), hand-computed."""
+"""Per-instance vehicle scores by range band (``prc_slam.evaluation.scoring.InstanceBands``), hand-computed."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from prc_slam import labels as L
-from prc_slam.report import classification_section
-from prc_slam.scoring import InstanceBands, band_name, range_band_rows
+from prc_slam.evaluation.scoring import InstanceBands, band_name, range_band_rows
+from prc_slam.jobs.report import classification_section
 
 V, VEG, B = L.VEHICLE, L.VEGETATION, L.BUILDING
 

@@ -356,7 +356,7 @@ def test_ouster_sweeps_in_kitti_layout(path, layout, tmp_path):
     pts = np.concatenate([xyz, np.zeros((len(xyz), 1), np.float32)], axis=1).astype(np.float32)
     (tmp_path / "velodyne").mkdir()
     pts.tofile(tmp_path / "velodyne" / "000000.bin")
-    from data_tools.kitti import KittiSequence
+    from data_tools.formats.kitti import KittiSequence
 
     scan = KittiSequence(tmp_path)[0]
     rep = scan.meta["organize"]

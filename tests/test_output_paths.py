@@ -40,7 +40,7 @@ OUTPUTS = [
     (["batch", "{tmp}/plan.yaml"], "--out", "dir", "prc_slam.jobs.batch.load_plan"),
     (["simulate", "--frames", "2"], "--out", "any", "data_tools.sim.simulator.Simulator"),
     (["simulate", "--frames", "2", "--out", "{tmp}/s"], "--kitti", "dir", "data_tools.sim.simulator.Simulator"),
-    (["bench"], "--json", "file", "prc_slam.benchmark.run_bench"),
+    (["bench"], "--json", "file", "prc_slam.jobs.bench.run_bench"),
     (["demo", "--frames", "2"], "--out", "dir", "prc_slam.jobs.demo.simulated_drive"),
     (["live", "velodyne://2368"], "--json", "file", "prc_slam.live.run.run_live"),
     (["live", "velodyne://2368"], "--poses-out", "file", "prc_slam.live.run.run_live"),

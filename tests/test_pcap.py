@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from data_tools import DataError, open_dataset
-from data_tools.ouster import read_ouster_npz
-from data_tools.ouster_pcap import OusterPcapSequence, find_metadata
+from data_tools.formats.ouster import read_ouster_npz
+from data_tools.formats.ouster_pcap import OusterPcapSequence, find_metadata
 from prc_slam.config import PRCConfig
 from prc_slam.prc import classify_scan
 
@@ -265,7 +265,7 @@ def test_velodyne_pcap_organised_into_true_slots(vlp16_capture):
 
 def test_velodyne_pcap_bad_input(tmp_path):
     pytest.importorskip("velodyne_decoder", reason="velodyne-decoder is not installed")
-    from data_tools.velodyne_pcap import VelodynePcapSequence
+    from data_tools.formats.velodyne_pcap import VelodynePcapSequence
 
     payloads, stamps, _ = vlp16_stream(n_sweeps=0.5)
     path = write_pcap(tmp_path / "v.pcap", payloads, stamps)
@@ -336,7 +336,7 @@ def test_velodyne_dual_return_shares_slots(tmp_path):
 
 
 def test_primary_returns_hand_computed():
-    from data_tools.velodyne_pcap import primary_returns
+    from data_tools.formats.velodyne_pcap import primary_returns
 
     # firing (column 0, ring 0): LAST then STRONGEST -> the strongest is kept, the last shares it;
     # (0, 1): BOTH; (1, 0): a LAST return alone is kept

@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from data_tools import DataError, open_dataset
-from data_tools.pcd import (
+from data_tools.formats.pcd import (
     SweepFolder,
     read_pcd,
     read_ply,
     times_in_seconds,
     write_pcd,
 )
-from data_tools.writers import write_las, write_ply
+from data_tools.formats.writers import write_las, write_ply
 from prc_slam.config import PRCConfig
 from prc_slam.prc import classify_scan
 
@@ -385,7 +385,7 @@ def test_real_vlp16_pcd_uses_channel_and_time_fields():
 
 def test_map_cloud_chunks_read_pcd(tmp_path):
     """mapclass reads .pcd maps through the same reader (binary_compressed included)."""
-    from data_tools.clouds import cloud_chunks, cloud_size
+    from data_tools.formats.clouds import cloud_chunks, cloud_size
 
     fields = all_types_fields(1000, seed=4)
     f = write_compressed_pcd(tmp_path / "map.pcd", fields)

@@ -1,4 +1,4 @@
-"""The peer tools (Open3D SOR/ROR, Patchwork++) behind prc_slam.peers: masks in input order."""
+"""The peer tools (Open3D SOR/ROR, Patchwork++) behind prc_slam.evaluation.peers: masks in input order."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from prc_slam import peers
+from prc_slam.evaluation import peers
 
 
 def test_ror_hand_computed():

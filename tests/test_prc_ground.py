@@ -251,7 +251,7 @@ def test_thread_use_pauses_after_a_step_that_waited_for_a_core():
     import time
 
     from prc_slam.prc.algorithm import THREADED_SLOTS
-    from prc_slam.threads import ThreadUse
+    from prc_slam.util.threads import ThreadUse
 
     numba = pytest.importorskip("numba")
     if numba.get_num_threads() < 2:
@@ -328,7 +328,7 @@ def test_column_ground_in_forest_mode():
     ground counted as trunks); now 0.87 and 0.77. The paper's rule stays with ground
     "largest_smooth" (the forest preset)."""
     from data_tools.sim.simulator import SimConfig, Simulator
-    from prc_slam.evaluation import ConfusionAccumulator
+    from prc_slam.evaluation.metrics import ConfusionAccumulator
     from prc_slam.pipeline import classify_frames
     from prc_slam.scan import Scan
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from data_tools import DataError, open_dataset
-from data_tools.kitti import KittiSequence, read_calib_tr, read_label_file, read_velodyne_bin
-from data_tools.ouster import destagger, read_ouster_npz
+from data_tools.formats.kitti import KittiSequence, read_calib_tr, read_label_file, read_velodyne_bin
+from data_tools.formats.ouster import destagger, read_ouster_npz
 from prc_slam import labels as L
 
 CALIB = "Tr: " + " ".join(["1", "0", "0", "0", "0", "1", "0", "0", "0", "0", "1", "0"]) + "\n"

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from data_tools import open_dataset
-from data_tools.ouster import read_ouster_npz
+from data_tools.formats.ouster import read_ouster_npz
 from prc_slam import labels as L
-from prc_slam.classify_run import run_classification
 from prc_slam.config import PRCConfig
+from prc_slam.evaluation.scoring import PRCScorer
+from prc_slam.pipeline import Pipeline
 from prc_slam.prc import classify_scan
 
 pytestmark = pytest.mark.realdata
@@ -43,7 +44,7 @@ def _ground_prf(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float, floa
 def test_kitti_ground_beside_patchwork(kitti_labelled):
     """Issue 15: ground F1 >= 0.96 on the labelled frames, above Patchwork++ on the same frames;
     solid classes called noise <= 2 %."""
-    from prc_slam import peers
+    from prc_slam.evaluation import peers
 
     pytest.importorskip("pypatchworkpp", reason="Patchwork++ is an optional peer: pip install prc-slam[peers]")
     cfg = PRCConfig.preset("multibeam")
@@ -68,7 +69,7 @@ def test_kitti_ground_count_tracks_patchwork(kitti_dir):
     """Over frames 0-15 the ground shrinks as the car drives on (Patchwork++ too: 72.6k -> 55k);
     PRC's count follows Patchwork++'s frame by frame instead of flipping (issue 15: the paper's
     largest smooth patch gave 79-81k, then 44-59k)."""
-    from prc_slam import peers
+    from prc_slam.evaluation import peers
 
     pytest.importorskip("pypatchworkpp", reason="Patchwork++ is an optional peer: pip install prc-slam[peers]")
     ds = open_dataset(kitti_dir)
@@ -82,6 +83,12 @@ def test_kitti_ground_count_tracks_patchwork(kitti_dir):
     assert np.all(np.abs(ratio / np.median(ratio) - 1) < 0.05), ratio
 
 
+def run_classification(scans, config: PRCConfig) -> dict:
+    """The ``classify`` metrics of PRC with ``config`` over ``scans``."""
+    scorer = PRCScorer()
+    return scorer.metrics(Pipeline(prc=config, sinks=[scorer]).run(scans))
+
+
 def test_kitti_multibeam_setting_meets_acceptance(kitti_labelled):
     best = run_classification(iter(kitti_labelled), PRCConfig.preset("multibeam"))
     paper = run_classification(iter(kitti_labelled), PRCConfig.preset("urban"))
@@ -93,7 +100,7 @@ def test_kitti_multibeam_setting_meets_acceptance(kitti_labelled):
 
 
 def test_ouster_model_matches_reference_xyz(ouster_files):
-    from data_tools.ouster import destagger
+    from data_tools.formats.ouster import destagger
 
     for f in ouster_files:
         raw = np.load(f)

@@ -50,7 +50,7 @@ def test_target_parsed():
 
 
 def test_replay_sends_every_packet_with_its_spacing(capture):
-    from data_tools.velodyne_pcap import Capture
+    from data_tools.formats.velodyne_pcap import Capture
 
     packets = [p for _t, _s, p in Capture(capture)]
     stamps = [t for t, _s, _p in Capture(capture)]

@@ -12,7 +12,7 @@ import pytest
 from rich.console import Console
 
 from prc_slam import labels as L
-from prc_slam.evaluation import ConfusionAccumulator
+from prc_slam.evaluation.metrics import ConfusionAccumulator
 
 NOT_OUTPUT = "not output by this method"
 
@@ -24,7 +24,7 @@ def rendered(table) -> str:
 
 
 def a_run(path_m: float, kitti: float | None) -> tuple[SimpleNamespace, dict]:
-    """What :func:`prc_slam.report.markdown_report` reads of a compare run: two variants."""
+    """What :func:`prc_slam.jobs.report.markdown_report` reads of a compare run: two variants."""
     variant = {
         "ate_rmse_m": 0.05, "rpe_trans_m": 0.02, "kitti_trans_pct": kitti, "kitti_rot_deg_per_m": None,
         "path_length_m": path_m, "ms_per_frame": 20.0, "points_in": 1000, "points_to_icp": 300, "frames": 5,
@@ -39,7 +39,7 @@ def a_run(path_m: float, kitti: float | None) -> tuple[SimpleNamespace, dict]:
 @pytest.mark.parametrize("path_m", [0.0, 23.4, 99.9])
 def test_a_missing_kitti_drift_says_the_path_is_too_short(path_m):
     from prc_slam.cli.common import variant_table
-    from prc_slam.report import markdown_report
+    from prc_slam.jobs.report import markdown_report
 
     result, metrics = a_run(path_m, None)
     report = markdown_report(result, metrics, "t")
@@ -51,7 +51,7 @@ def test_a_missing_kitti_drift_says_the_path_is_too_short(path_m):
 
 def test_a_kitti_drift_on_a_long_path_shows_with_no_note():
     from prc_slam.cli.common import variant_table
-    from prc_slam.report import markdown_report
+    from prc_slam.jobs.report import markdown_report
 
     result, metrics = a_run(250.0, 1.234)
     report = markdown_report(result, metrics, "t")
@@ -81,7 +81,7 @@ def table_rows(text: str) -> dict[str, str]:
 
 def test_a_class_never_output_is_said_so_and_a_wrong_one_keeps_its_zero():
     from prc_slam.cli.common import class_table
-    from prc_slam.report import classification_section, mapclass_section
+    from prc_slam.jobs.report import classification_section, mapclass_section
 
     metrics = scores_of_a_method()
     mc = {"points": 100, "poses": "prc", "seconds": 1.0, "points_per_s": 100.0, "counts": {}, **metrics}
@@ -101,7 +101,7 @@ def test_a_class_the_reference_never_has_is_said_so():
     """A detector's curbs scored against a reference without curbs (SemanticKITTI): its precision
     is 0 by construction, and the row says why instead of a bare 0.000."""
     from prc_slam.cli.common import class_table
-    from prc_slam.report import NOT_IN_REFERENCE, classification_section
+    from prc_slam.jobs.report import NOT_IN_REFERENCE, classification_section
 
     ref = np.array([L.GROUND] * 80 + [L.BUILDING] * 20, np.uint8)
     pred = np.array([L.GROUND] * 80 + [L.CURB] * 5 + [L.BUILDING] * 15, np.uint8)
@@ -139,7 +139,7 @@ def test_the_first_frame_gives_no_eta_and_the_next_ones_leave_it_out(monkeypatch
 
 
 def test_the_report_says_how_much_of_each_class_reached_icp_and_why_noise_does():
-    from prc_slam.report import markdown_report
+    from prc_slam.jobs.report import markdown_report
 
     result, metrics = a_run(250.0, 1.0)
     report = markdown_report(result, metrics, "t")

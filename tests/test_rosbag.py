@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from data_tools import open_dataset
 from data_tools.datasets import detect_format
 from data_tools.errors import DataError
-from data_tools.rosbag import (
+from data_tools.formats.rosbag import (
     CloudMessage,
     Field,
     RosbagSequence,
@@ -20,10 +20,10 @@ from data_tools.rosbag import (
     decode_cloud,
     time_unit,
 )
+from data_tools.formats.stream_out import RosCloudWriter, open_stream_writer
 from data_tools.sim.simulator import SimConfig, Simulator
-from data_tools.stream_out import RosCloudWriter, open_stream_writer
 from prc_slam.config import Config
-from prc_slam.filter_run import choose_points, parse_keep_labels
+from prc_slam.filtering import choose_points, parse_keep_labels
 from prc_slam.jobs.filter import run_filter
 from prc_slam.pipeline import classify_frames
 from prc_slam.prc.config import PRCConfig
@@ -465,14 +465,14 @@ def test_field_outside_point_step_is_an_error():
     rec = np.zeros(4, np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")]))
     cloud = cloud_from_records(rec)
     bad = CloudMessage(**{**cloud.__dict__, "fields": (*cloud.fields, Field("t", 10, 6, 1))})
-    from data_tools.rosbag import fields_dtype
+    from data_tools.formats.rosbag import fields_dtype
 
     with pytest.raises(DataError, match="outside point_step 12"):
         fields_dtype(bad.fields, bad.point_step, False, "x.bag")
 
 
 def test_filter_sink_in_the_pipeline_writes_what_run_filter_writes(layout_bags, tmp_path):
-    from prc_slam.filter_run import FilterSink
+    from prc_slam.jobs.filter import FilterSink
     from prc_slam.pipeline import Pipeline
 
     path, _built, _model, _frames = layout_bags["velodyne"]
@@ -489,7 +489,7 @@ def test_filter_sink_in_the_pipeline_writes_what_run_filter_writes(layout_bags, 
 
 
 def test_pcd_folder_in_pcd_folder_out_keeps_the_input_fields(layout_bags, tmp_path):
-    from data_tools.pcd import read_pcd, write_pcd
+    from data_tools.formats.pcd import read_pcd, write_pcd
 
     _path, built, _model, _frames = layout_bags["velodyne"]
     src = tmp_path / "sweeps"
@@ -514,7 +514,7 @@ def test_real_ouster_sweeps_as_an_ouster_ros_bag_classify_like_the_npz_reader(ou
     """The shared OS-0/OS-1/OS-2 sweeps written as the Ouster ROS driver publishes them (organised,
     destaggered, zeros for no return, t in ns, ring): PRC labels as from the decoded npz reader
     (destaggered) on >= 99 % of returns (the bag's ranges come from xyz, the npz's from range_mm)."""
-    from data_tools.ouster import destagger, read_ouster_npz
+    from data_tools.formats.ouster import destagger, read_ouster_npz
 
     for f in ouster_files[:: max(1, len(ouster_files) // 2)]:
         with np.load(f) as z:
@@ -556,7 +556,7 @@ def test_organised_cloud_whose_rows_are_firings_is_organised_by_its_ring_field(s
 
 def test_time_fields_absolute_seconds_and_relative_nanoseconds():
     """Hesai-style absolute float64 seconds and Livox-style ``offset_time`` (uint32 ns from the stamp)."""
-    from data_tools.rosbag import detect_time_field
+    from data_tools.formats.rosbag import detect_time_field
 
     stamp_ns = 1_700_000_000_250_000_000
     offsets = np.arange(0, 100_000_000, 1_000_000, dtype=np.uint32)  # 0 .. 99 ms

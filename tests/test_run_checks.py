@@ -16,8 +16,8 @@ from typer.testing import CliRunner
 
 from prc_slam import labels as L
 from prc_slam.cli import app
+from prc_slam.evaluation.scoring import class_shares
 from prc_slam.pipeline import NOISE_WARN_SHARE, noise_share
-from prc_slam.scoring import class_shares
 from tests.conftest import SHARED_DATA
 
 runner = CliRunner()

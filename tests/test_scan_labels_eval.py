@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from prc_slam import labels as L
-from prc_slam.evaluation import ConfusionAccumulator
+from prc_slam.evaluation.metrics import ConfusionAccumulator
 from prc_slam.scan import ProfilerSensor, Scan, ScanError, SpinningSensor, sensor_from_description
 
 

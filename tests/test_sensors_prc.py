@@ -17,11 +17,11 @@ import pytest
 from data_tools.sim.sensors import SPINNING
 from data_tools.sim.simulator import NoiseConfig, SimConfig, Simulator
 from prc_slam import labels as L
-from prc_slam.evaluation import ConfusionAccumulator
+from prc_slam.evaluation.metrics import ConfusionAccumulator
+from prc_slam.evaluation.scoring import SOLID_CLASSES
 from prc_slam.pipeline import classify_frames
 from prc_slam.prc.config import PRCConfig
 from prc_slam.scan import Scan
-from prc_slam.scoring import SOLID_CLASSES
 
 #: scene -> (class, F1 floor), (class, F1 floor), largest share of solid points called noise
 FLOORS = {"urban": (("ground", 0.86), ("noise", 0.8), 0.04), "forest": (("ground", 0.76), ("trunk", 0.55), 0.15)}

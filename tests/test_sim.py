@@ -7,7 +7,7 @@ import open3d as o3d
 import pytest
 
 from data_tools import open_dataset
-from data_tools.kitti import KittiSequence
+from data_tools.formats.kitti import KittiSequence
 from data_tools.sim import simulator as S
 from data_tools.sim.dataset import SimSequence, export_kitti, write_sequence
 from data_tools.sim.simulator import NoiseConfig, SimConfig, Simulator

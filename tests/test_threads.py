@@ -1,4 +1,4 @@
-"""Work on plain threads (prc_slam.threads): chunks cover every item once, steps come back in
+"""Work on plain threads (prc_slam.util.threads): chunks cover every item once, steps come back in
 order with their seconds, errors are raised in the caller, and the online detector's outputs are
 the same with one thread as with several."""
 
@@ -10,7 +10,7 @@ import numba
 import numpy as np
 import pytest
 
-from prc_slam.threads import in_threads, side_by_side
+from prc_slam.util.threads import in_threads, side_by_side
 
 
 @pytest.fixture(params=[1, 2])

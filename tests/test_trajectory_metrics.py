@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from data_tools.kitti import read_kitti_poses
-from data_tools.trajectory_io import read_tum_poses, write_kitti_poses, write_tum_poses
-from prc_slam.evaluation import ate_rmse, kitti_errors, rpe
+from data_tools.formats.kitti import read_kitti_poses
+from data_tools.formats.trajectory_io import read_tum_poses, write_kitti_poses, write_tum_poses
+from prc_slam.evaluation.metrics import ate_rmse, kitti_errors, rpe
 
 
 def straight(n: int, step: float = 1.0) -> np.ndarray:

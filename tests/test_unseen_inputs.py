@@ -23,9 +23,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from data_tools import DataError
+from data_tools.formats.pcd import SweepFolder, rows_are_scan_lines, sweep_relative, write_pcd
+from data_tools.formats.rosbag import cloud_from_records, cloud_to_scan
 from data_tools.organize import Organizer
-from data_tools.pcd import SweepFolder, rows_are_scan_lines, sweep_relative, write_pcd
-from data_tools.rosbag import cloud_from_records, cloud_to_scan
 
 ELEVATION_DEG = np.linspace(15.0, -15.0, 16)
 
@@ -294,7 +294,7 @@ def block_scene(n: int = 2000, seed: int = 0) -> tuple[np.ndarray, np.ndarray, n
 
 def test_map_cloud_in_geographic_degrees_is_refused(tmp_path):
     """Before: lon/lat in degrees with heights in metres classified as 84 % poles, no warning."""
-    from data_tools.clouds import cloud_chunks
+    from data_tools.formats.clouds import cloud_chunks
 
     x, y, z = block_scene()
     path = write_las_cloud(tmp_path / "deg.las", 11.0 + x / 111_000, 48.0 + y / 111_000, z, 1e-7)
@@ -308,7 +308,7 @@ def test_map_cloud_in_geographic_degrees_is_refused(tmp_path):
 @pytest.mark.parametrize("offset", [(0.0, 0.0), (500_000.0, 5_400_000.0), (-170.0, 80.0)])
 def test_metric_map_clouds_are_read(tmp_path, offset):
     """Metric clouds near the origin, in UTM, or near (-170, 80) m are read unchanged."""
-    from data_tools.clouds import cloud_chunks
+    from data_tools.formats.clouds import cloud_chunks
 
     x, y, z = block_scene()
     path = write_las_cloud(tmp_path / "m.las", x + offset[0], y + offset[1], z, 0.001)
@@ -330,7 +330,7 @@ def test_an_empty_map_cloud_is_an_error(tmp_path):
 
 
 def test_coarse_las_scale_is_warned_once(tmp_path, caplog):
-    from data_tools.clouds import cloud_chunks
+    from data_tools.formats.clouds import cloud_chunks
 
     x, y, z = block_scene()
     path = write_las_cloud(tmp_path / "coarse.las", x, y, z, 1.0)
@@ -346,7 +346,7 @@ def test_coarse_las_scale_is_warned_once(tmp_path, caplog):
 def test_nuscenes_five_value_bins_are_read_with_their_ring(tmp_path):
     """nuScenes ``*.pcd.bin``: x y z intensity ring. Before: read as 4 values per point (garbage
     points; 'cannot organise' blaming the sensor) whenever the size fitted 16-byte points."""
-    from data_tools.pcd import read_bin
+    from data_tools.formats.pcd import read_bin
 
     grid = spinning_grid(16, 720)
     pts = np.swapaxes(grid, 0, 1).reshape(-1, 3)  # firing order
@@ -363,7 +363,7 @@ def test_nuscenes_five_value_bins_are_read_with_their_ring(tmp_path):
 
 
 def test_kitti_four_value_bins_stay_four_values(tmp_path):
-    from data_tools.pcd import read_bin
+    from data_tools.formats.pcd import read_bin
 
     rng = np.random.default_rng(1)
     pts = np.column_stack([rng.normal(0, 20, (100, 3)), rng.random(100)]).astype(np.float32)  # 100 points: 400 = 5 x 80
@@ -408,7 +408,7 @@ def ros_sweep(time_values: np.ndarray, stamp_ns: int):
 def test_ros_point_times_on_another_clock_start_at_the_header_stamp(base, caplog):
     """Before: point times 5e8 s before (or 5000 s after) the header stamp; odometry stopped at
     frame 2 ('registration impossible')."""
-    from data_tools.rosbag import detect_time_field
+    from data_tools.formats.rosbag import detect_time_field
 
     col_t = np.arange(720) * 0.1 / 720
     stamp_ns = 1_700_000_000 * 10**9
@@ -424,7 +424,7 @@ def test_ros_point_times_on_another_clock_start_at_the_header_stamp(base, caplog
 
 
 def test_ros_point_times_relative_to_the_sweep_end_are_kept():
-    from data_tools.rosbag import detect_time_field
+    from data_tools.formats.rosbag import detect_time_field
 
     col_t = np.arange(720) * 0.1 / 720 - 0.1  # Velodyne driver: s before the stamp (sweep end)
     cloud = ros_sweep(col_t, 1_700_000_000 * 10**9)
@@ -464,8 +464,8 @@ def test_float32_relative_time_fields_are_kept(tmp_path, values):
 def test_recording_whose_header_stamps_repeat_is_warned_on_opening(tmp_path, caplog):
     """A driver that stamps two sweeps alike: odometry stops at the second; the reader says so
     when it opens the recording (before: nothing until the odometry's own failure)."""
-    from data_tools.rosbag import RosbagSequence
-    from data_tools.stream_out import RosCloudWriter
+    from data_tools.formats.rosbag import RosbagSequence
+    from data_tools.formats.stream_out import RosCloudWriter
 
     col_t = np.arange(720) * 0.1 / 720 - 0.1
     stamps = [10**18, 10**18 + 10**8, 10**18 + 10**8]
@@ -485,7 +485,7 @@ def test_recording_whose_header_stamps_repeat_is_warned_on_opening(tmp_path, cap
 def test_ouster_npz_with_ranges_in_metres_is_refused(ouster_files, tmp_path):
     """range_mm converted to float metres by a user: before, read as millimetres (every point
     within 0.15 m: 97.8 % ground, no warning)."""
-    from data_tools.ouster import read_ouster_npz
+    from data_tools.formats.ouster import read_ouster_npz
 
     data = dict(np.load(ouster_files[0]))
     whole_mm = dict(data, range_mm=data["range_mm"].astype(np.float64))  # floats of whole mm: fine
@@ -508,7 +508,7 @@ def test_sweeps_in_millimetres_are_warned(tmp_path, caplog):
     pts = np.swapaxes(grid, 0, 1).reshape(-1, 3)
     pts = pts[np.isfinite(pts).all(axis=1)]
     np.column_stack([pts, np.zeros(len(pts))]).astype(np.float32).tofile(tmp_path / "kitti" / "velodyne" / "000000.bin")
-    from data_tools.kitti import KittiSequence
+    from data_tools.formats.kitti import KittiSequence
 
     for seq in (SweepFolder(tmp_path / "pcd"), KittiSequence(tmp_path / "kitti")):
         caplog.clear()

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from data_tools.pcd import write_pcd
+from data_tools.formats.pcd import write_pcd
 
 UTM = np.array([512_345.678, 5_412_345.432, 300.0])
 
@@ -72,7 +72,7 @@ def test_utm_las_with_a_millimetre_scale_keeps_its_geometry_and_labels(tmp_path)
 
 
 def _ply_float32(path: Path, xyz: np.ndarray) -> Path:
-    from data_tools.writers import write_ply
+    from data_tools.formats.writers import write_ply
 
     write_ply(path, xyz)
     return path
@@ -93,7 +93,7 @@ def _pcd(path: Path, xyz: np.ndarray) -> Path:
 )
 def test_float32_utm_coordinates_are_warned(tmp_path, caplog, suffix, writer):
     """Before: float32 northings of 5.4e6 (one value per 0.5 m) were classified without a word."""
-    from data_tools.clouds import cloud_chunks
+    from data_tools.formats.clouds import cloud_chunks
 
     xyz = block_scene(3000) + UTM
     path = writer(tmp_path / f"utm32{suffix}", xyz.astype(np.float32))
@@ -107,7 +107,7 @@ def test_float32_utm_coordinates_are_warned(tmp_path, caplog, suffix, writer):
 
 @pytest.mark.parametrize("case", ["float64 at UTM", "float32 at the origin"])
 def test_fine_enough_coordinates_are_not_warned(tmp_path, caplog, case):
-    from data_tools.clouds import cloud_chunks
+    from data_tools.formats.clouds import cloud_chunks
 
     xyz = block_scene(3000)
     if case == "float64 at UTM":
@@ -148,7 +148,7 @@ def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
 def test_kitti_sweeps_numbered_from_10_take_their_own_poses_and_times(tmp_path):
     """Before: sweeps 10, 11, 13, 14 beside the sequence's full poses.txt / times.txt took lines
     1-4 (the ground truth of other sweeps, without a word)."""
-    from data_tools.kitti import KittiSequence
+    from data_tools.formats.kitti import KittiSequence
 
     seq = KittiSequence(_kitti_folder(tmp_path, [10, 11, 13, 14], 16))
     np.testing.assert_allclose(seq.poses[:, 0, 3], [10, 11, 13, 14])
@@ -159,7 +159,7 @@ def test_kitti_sweeps_numbered_from_10_take_their_own_poses_and_times(tmp_path):
 
 
 def test_kitti_lines_for_exactly_the_sweeps_present_stay_in_order(tmp_path):
-    from data_tools.kitti import KittiSequence
+    from data_tools.formats.kitti import KittiSequence
 
     seq = KittiSequence(_kitti_folder(tmp_path, [10, 11, 13, 14], 4))
     np.testing.assert_allclose(seq.poses[:, 0, 3], [0, 1, 2, 3])
@@ -169,7 +169,7 @@ def test_kitti_lines_for_exactly_the_sweeps_present_stay_in_order(tmp_path):
 
 def test_kitti_sweep_numbers_beyond_the_pose_file_are_an_error(tmp_path):
     from data_tools import DataError
-    from data_tools.kitti import KittiSequence
+    from data_tools.formats.kitti import KittiSequence
 
     with pytest.raises(DataError, match=r"times.txt: 6 times for scans numbered 000010..000014"):
         KittiSequence(_kitti_folder(tmp_path, [10, 11, 13, 14], 6))
@@ -248,7 +248,7 @@ def test_a_label_file_that_does_not_fit_leaves_its_frame_classified(tmp_path, ba
 
 
 def test_label_files_that_are_not_semantic_kitti_are_warned(tmp_path, caplog):
-    from data_tools.kitti import KittiSequence
+    from data_tools.formats.kitti import KittiSequence
 
     root = _kitti_folder(tmp_path / "seq", [0, 1, 2], 3)
     _with_labels(root, lambda n: np.random.default_rng(0).integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32))
@@ -314,9 +314,9 @@ def test_a_run_too_short_for_the_health_checks_says_so(tmp_path):
 def test_a_gap_in_the_frame_times_is_warned(tmp_path, caplog):
     """Before: sweeps 0-3 and 10-15 of KITTI 00 with their times.txt (0.7 s missing) ran without a
     word; the prc variant fell 4 m behind at the gap (raw coped)."""
-    from data_tools.kitti import KittiSequence
-    from data_tools.pcd import SweepFolder
-    from data_tools.trajectory_io import warn_time_gaps
+    from data_tools.formats.kitti import KittiSequence
+    from data_tools.formats.pcd import SweepFolder
+    from data_tools.formats.trajectory_io import warn_time_gaps
 
     with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
         assert warn_time_gaps(np.arange(10) * 0.1, "even") == 0
@@ -359,7 +359,7 @@ def test_mapclass_on_a_sequence_labelled_in_part_scores_the_labelled_frames(tmp_
     assert metrics["points"] == n0 + n2 and metrics["scored_points"] == n0
     assert metrics["per_class"]["ground"]["support"] == n0
 
-    from data_tools.kitti import KittiSequence
+    from data_tools.formats.kitti import KittiSequence
 
     seq = KittiSequence(root)
     cloud = map_from_dataset(seq, 3, 1, None, prc={0: np.full(n0, 2, np.uint8)})  # frame 1 without PRC labels
@@ -373,7 +373,7 @@ def test_poses_whose_z_is_not_up_are_warned(tmp_path, caplog):
     """Before: ``mapclass kitti00 --poses kitti00/poses.txt`` (camera 0's frame: the car drives
     along z) stacked the sweeps 0.86 m above each other without a word: 286,816 of 496,488 points
     'building', ground F1 0.60 instead of 0.90."""
-    from data_tools.kitti import KittiSequence
+    from data_tools.formats.kitti import KittiSequence
     from prc_slam.jobs.mapclass import map_from_dataset, warn_unless_z_up
 
     def poses(axis: int, step: float, n: int = 6) -> np.ndarray:
@@ -403,7 +403,7 @@ def test_a_folder_of_sweeps_from_several_ouster_sensors_is_warned(ouster_files, 
     frame 1 on a frame time going back, with no word about the cause."""
     import shutil
 
-    from data_tools.ouster import OusterSequence
+    from data_tools.formats.ouster import OusterSequence
 
     def one(prefix: str) -> Path:
         found = [f for f in ouster_files if f.name.startswith(prefix)]
@@ -439,7 +439,7 @@ def test_sweeps_in_a_world_frame_are_told_apart_from_millimetres(tmp_path, caplo
     import contextlib
 
     from data_tools import DataError
-    from data_tools.pcd import SweepFolder
+    from data_tools.formats.pcd import SweepFolder
     from prc_slam.scan import ScanError
     from tests.test_unseen_inputs import spinning_grid
 
@@ -466,8 +466,8 @@ def test_a_recording_of_registered_clouds_is_warned(tmp_path, caplog):
     import contextlib
 
     from data_tools import DataError
-    from data_tools.rosbag import RosbagSequence, cloud_from_records
-    from data_tools.stream_out import RosCloudWriter
+    from data_tools.formats.rosbag import RosbagSequence, cloud_from_records
+    from data_tools.formats.stream_out import RosCloudWriter
     from tests.test_unseen_inputs import spinning_grid
 
     g = spinning_grid().reshape(-1, 3)

@@ -189,7 +189,7 @@ def test_a_truncated_capture_keeps_the_sweeps_before_the_cut(cut, vlp16_frames, 
 
 def test_a_capture_without_velodyne_packets_is_a_one_line_error(tmp_path):
     pytest.importorskip("velodyne_decoder", reason="velodyne-decoder is not installed")
-    from data_tools.velodyne_pcap import VelodynePcapSequence
+    from data_tools.formats.velodyne_pcap import VelodynePcapSequence
 
     path = write_pcap(tmp_path / "gps.pcap", [(1e9 + k, eth_udp(gprmc_packet(k), 8308)) for k in range(5)])
     with pytest.raises(DataError, match="no Velodyne data packets") as exc:
@@ -390,7 +390,7 @@ def test_an_interrupted_classify_says_what_it_left(small_kitti, tmp_path, monkey
 
 
 def test_output_files_are_written_whole_or_not_at_all(tmp_path):
-    from data_tools.writers import atomic_path, write_label_file
+    from data_tools.formats.writers import atomic_path, write_label_file
 
     path = tmp_path / "000000.label"
     with pytest.raises(KeyboardInterrupt), atomic_path(path) as tmp:
@@ -410,7 +410,7 @@ EPOCH_NS = 1_700_000_000 * 10**9
 def vlp16_records(layout: list[tuple[str, str, int]], itemsize: int, *, big: bool = False) -> np.ndarray:
     """The real VLP-16 sweep (``multisensor/velodyne_vlp16.pcd``) in a PointCloud2 point layout
     ``(name, numpy type, offset)``: ring from its ``channel``, time (s) from the azimuth."""
-    from data_tools.pcd import read_pcd
+    from data_tools.formats.pcd import read_pcd
     from tests.conftest import SHARED_DATA
 
     path = SHARED_DATA / "multisensor" / "velodyne_vlp16.pcd"
@@ -446,8 +446,8 @@ DRIVER_LAYOUTS = {  # as real drivers publish them: field order, padding, dataty
 
 
 def prc_labels_of(rec: np.ndarray, **cloud_kw) -> np.ndarray:
+    from data_tools.formats.rosbag import cloud_from_records, cloud_to_scan, detect_time_field
     from data_tools.organize import Organizer
-    from data_tools.rosbag import cloud_from_records, cloud_to_scan, detect_time_field
     from prc_slam.prc import classify_scan
     from prc_slam.prc.config import PRCConfig
 
@@ -473,8 +473,8 @@ def test_a_recording_whose_header_stamps_are_unset_is_timed_by_its_log_times(tmp
     """Every header stamp 0 (a driver that leaves them unset): the frame times were all 0 and the
     odometry stopped at frame 1; the log times time the frames now, and the messages written
     back keep their own stamps."""
-    from data_tools.rosbag import RosbagSequence, cloud_from_records
-    from data_tools.stream_out import RosCloudWriter
+    from data_tools.formats.rosbag import RosbagSequence, cloud_from_records
+    from data_tools.formats.stream_out import RosCloudWriter
 
     rec = vlp16_records(VELODYNE_LAYOUT, 22)
     path = tmp_path / "unset stamps.mcap"
@@ -499,8 +499,8 @@ def test_the_summary_counts_points_at_the_origin_as_points_without_a_return(tmp_
     'non-finite points'."""
     from typer.testing import CliRunner
 
-    from data_tools.rosbag import cloud_from_records
-    from data_tools.stream_out import RosCloudWriter
+    from data_tools.formats.rosbag import cloud_from_records
+    from data_tools.formats.stream_out import RosCloudWriter
     from prc_slam.cli import app
     from tests.test_unseen_inputs import spinning_grid
 

@@ -140,7 +140,7 @@ def _numpy_variants(xyz: np.ndarray) -> dict[str, object]:
 def test_numpy_clouds_with_more_columns_fields_or_in_an_npz_are_read(tmp_path, name):
     """Before: ``(N, 4)`` / ``(N, 6)`` arrays and structured ones were refused ('expected (N, 3)'),
     and an ``.npz`` cloud was opened as an Ouster sweep ('the input has no ground-truth poses')."""
-    from data_tools.clouds import cloud_chunks, cloud_size, is_cloud_file
+    from data_tools.formats.clouds import cloud_chunks, cloud_size, is_cloud_file
 
     xyz, _ = block_scene(500)
     value = _numpy_variants(xyz)[name]
@@ -164,8 +164,8 @@ def test_numpy_clouds_with_more_columns_fields_or_in_an_npz_are_read(tmp_path, n
     ],
 )
 def test_numpy_arrays_that_are_not_clouds_are_one_line_errors(tmp_path, name, value, needle):
-    from data_tools.clouds import cloud_chunks
     from data_tools.errors import DataError
+    from data_tools.formats.clouds import cloud_chunks
 
     path = tmp_path / name
     np.savez(path, **value) if isinstance(value, dict) else np.save(path, value)
@@ -175,7 +175,7 @@ def test_numpy_arrays_that_are_not_clouds_are_one_line_errors(tmp_path, name, va
 
 
 def test_an_ouster_npz_is_still_a_sweep_and_not_a_cloud(ouster_files):
-    from data_tools.clouds import is_cloud_file
+    from data_tools.formats.clouds import is_cloud_file
 
     assert not is_cloud_file(ouster_files[0])
 
@@ -198,7 +198,7 @@ def test_tum_poses_are_matched_to_the_frames_by_time(tmp_path, caplog):
     out of order), or in order with a warning when the times are on another clock."""
     import logging
 
-    from data_tools.trajectory_io import read_pose_file, write_kitti_poses, write_tum_poses
+    from data_tools.formats.trajectory_io import read_pose_file, write_kitti_poses, write_tum_poses
 
     truth = _yaw_poses(8)
     times = 0.1 * np.arange(8) + 0.003
@@ -220,7 +220,7 @@ def test_pose_files_that_cannot_place_the_frames_are_one_line_errors(tmp_path, c
     import logging
 
     from data_tools.errors import DataError
-    from data_tools.trajectory_io import read_pose_file, write_kitti_poses, write_tum_poses
+    from data_tools.formats.trajectory_io import read_pose_file, write_kitti_poses, write_tum_poses
 
     truth = _yaw_poses(6)
     times = 0.1 * np.arange(6)
@@ -254,8 +254,8 @@ def test_pose_files_that_cannot_place_the_frames_are_one_line_errors(tmp_path, c
 def test_mapclass_takes_tum_poses_like_kitti_poses_and_warns_of_extra_poses(tmp_path, caplog):
     import logging
 
-    from data_tools.kitti import KittiSequence
-    from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
+    from data_tools.formats.kitti import KittiSequence
+    from data_tools.formats.trajectory_io import write_kitti_poses, write_tum_poses
     from prc_slam.jobs.mapclass import map_from_dataset
     from tests.test_readers import make_kitti
 
@@ -355,8 +355,8 @@ def test_ply_map_clouds_are_read_exactly_and_cut_ones_are_errors(tmp_path, fmt):
     """Before (Open3D): a PLY cut in half was read as the whole vertex count, the missing half
     filled with zeros ('RPly: Error reading ...' on stderr, 10,000 points classified); a cut ascii
     PLY could end in a SystemError traceback; a PLY without y and z was read as points on a line."""
-    from data_tools.clouds import cloud_chunks
     from data_tools.errors import DataError
+    from data_tools.formats.clouds import cloud_chunks
 
     xyz, _ = block_scene(400)
     xyz = xyz.astype(np.float32).astype(np.float64)
@@ -387,8 +387,8 @@ def _patch_count(path: Path, count: int) -> Path:
 def test_las_records_beyond_the_header_count_are_an_error(tmp_path):
     """Before: a header announcing 1,000 of 3,000 records classified 1,000 points and dropped the
     rest without a word; a cut file said laspy's 'buffer size must be a multiple of element size'."""
-    from data_tools.clouds import cloud_chunks, cloud_classes, cloud_size
     from data_tools.errors import DataError
+    from data_tools.formats.clouds import cloud_chunks, cloud_classes, cloud_size
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
@@ -529,7 +529,7 @@ def test_a_tiles_own_classes_and_instances_are_read_chunk_by_chunk(tmp_path, mon
     """``cloud_classes`` reads classification, instance and withheld chunk by chunk (laspy.read
     held every dimension of every point: 30-40 bytes a point for a tile scored against itself);
     the result is that of reading the whole file, over several chunks."""
-    import data_tools.clouds as clouds
+    import data_tools.formats.clouds as clouds
 
     xyz, classes = block_scene(900)
     header = laspy.LasHeader(point_format=6, version="1.4")

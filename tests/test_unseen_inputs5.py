@@ -46,7 +46,7 @@ import numpy as np
 import pytest
 
 from data_tools import DataError, open_dataset
-from data_tools.rosbag import RosbagSequence, cloud_from_records
+from data_tools.formats.rosbag import RosbagSequence, cloud_from_records
 
 from .conftest import SHARED_DATA
 from .test_pcap import vlp16_stream, write_pcap
@@ -544,7 +544,7 @@ def test_ouster_metadata_of_another_lidar_mode_is_a_one_line_error(tmp_path, cap
 def test_a_hesai_capture_says_what_it_is(tmp_path):
     """Before: 'no Ouster sensor metadata: expected hesai.json beside it' (and, with a json beside
     it, 'no lidar packets matching'). Ouster and Velodyne captures are not affected."""
-    from data_tools.ouster_pcap import OusterPcapSequence
+    from data_tools.formats.ouster_pcap import OusterPcapSequence
 
     pandar40p = [b"\xee\xff" + bytes(1260)] * 40
     gps = [b"$GPRMC" + bytes(506)] * 10  # Hesai GPS packets between the data

@@ -26,7 +26,7 @@ Found and fixed:
   of sweeps read, not by the sweep's index: with ``--stride 5`` keyframes 0.5 s apart were written
   0.1 s apart (and the guard's speed bound took 0.1 s); in a folder mixing sweeps with and without
   times two sweeps got the same time and the PRC variants stopped ("frame time 0.4 does not follow
-  0.4"). Fixed by the lead in ``data_tools/pcd.py``: sweep i at i periods.
+  0.4"). Fixed by the lead in ``data_tools/formats/pcd.py``: sweep i at i periods.
 
 Left: a featureless corridor (4 x 3 m box, VLP-16 pattern walking 3.8 m) leaves every variant
 standing still with perfect inliers and residuals, unflagged (ATE 1.1 m): no health signal sees a
@@ -178,7 +178,7 @@ def test_frames_missing_with_their_times_are_bridged(kitti_dir, tmp_path):
 def test_unnumbered_sweeps_beside_a_longer_pose_file_are_warned(kitti_dir, tmp_path, caplog):
     """Before: sweeps named ``a.bin``, ``b.bin`` beside KITTI 00's 16 poses took the first two
     without a word (whichever sweeps they were)."""
-    from data_tools.kitti import KittiSequence
+    from data_tools.formats.kitti import KittiSequence
 
     root = _kitti_copy(kitti_dir, tmp_path / "seq", [])
     for name, k in (("a", 7), ("b", 8)):
@@ -202,7 +202,7 @@ def test_frame_times_in_milliseconds_or_nanoseconds_are_warned(kitti_dir, tmp_pa
     """Before: a ``times.txt`` in milliseconds or nanoseconds (ROS stamps) was read as seconds
     without a word: the guard's speed bound let any jump pass (70 m/s x 1e8 s) and the TUM files
     and ``frames.txt`` gave nanoseconds as seconds. Epoch seconds are seconds (not warned)."""
-    from data_tools.kitti import KittiSequence
+    from data_tools.formats.kitti import KittiSequence
 
     root = _kitti_copy(kitti_dir, tmp_path / "seq", [0, 1, 2])
     np.savetxt(root / "times.txt", offset + scale * np.loadtxt(kitti_dir / "times.txt"), fmt="%.6f")
@@ -245,10 +245,10 @@ def test_a_bad_sweep_mid_sequence_is_flagged_at_its_frame(kitti_dir, tmp_path, c
 
 
 def test_strided_pcd_sweeps_without_times_keep_their_spacing(kitti_dir, tmp_path):
-    """Before (fixed by the lead in data_tools/pcd.py): KITTI 00 sweeps as PCDs without times, every
+    """Before (fixed by the lead in data_tools/formats/pcd.py): KITTI 00 sweeps as PCDs without times, every
     5th: frames 0.5 s apart were timed 0.1 s apart (0.1, 0.2, 0.3, 0.4: the organiser's count of
     sweeps read), so the TUM files and the guard's speed bound took 0.1 s; now sweep i at i periods."""
-    from data_tools.pcd import write_pcd
+    from data_tools.formats.pcd import write_pcd
     from prc_slam.jobs.common import open_input
 
     folder = tmp_path / "pcd"

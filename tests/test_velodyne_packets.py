@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 
 from data_tools.errors import DataError
-from data_tools.velodyne_packets import FORMATS, PACKET_SIZE, PacketEncoder, lasers_of_rows
+from data_tools.formats.velodyne_packets import FORMATS, PACKET_SIZE, PacketEncoder, lasers_of_rows
 
 
 @pytest.fixture(scope="module")
 def vlp16_sim(tmp_path_factory):
     """Three simulated VLP-16 sweeps (clockwise) and their capture."""
+    from data_tools.formats.velodyne_packets import SimCapture
     from data_tools.sim.dataset import write_sequence
     from data_tools.sim.simulator import SimConfig, Simulator
-    from data_tools.velodyne_packets import SimCapture
 
     root = tmp_path_factory.mktemp("vlp16")
     sim = Simulator(SimConfig(sensor="vlp16", frames=3, clockwise=True))
@@ -31,7 +31,7 @@ def vlp16_sim(tmp_path_factory):
 
 
 def test_packets_have_the_format(vlp16_sim):
-    from data_tools.velodyne_pcap import Capture
+    from data_tools.formats.velodyne_pcap import Capture
 
     path, _frames, _sensor = vlp16_sim
     packets = list(Capture(path))
@@ -45,8 +45,8 @@ def test_packets_have_the_format(vlp16_sim):
 
 def test_packets_hold_the_simulated_ranges(vlp16_sim):
     """The packets' distances are the simulated ranges in 2 mm units, laser by laser, firing by firing."""
-    from data_tools.velodyne_packets import PACKET_DTYPE, laser_elevations
-    from data_tools.velodyne_pcap import Capture
+    from data_tools.formats.velodyne_packets import PACKET_DTYPE, laser_elevations
+    from data_tools.formats.velodyne_pcap import Capture
 
     path, frames, sensor = vlp16_sim
     raw = b"".join(p for _t, _s, p in Capture(path))
@@ -64,7 +64,7 @@ def test_decoded_sweeps_are_the_simulated_ones(vlp16_sim):
     """Every return comes back on its ring, in firing order, at its range and its beam's elevation
     (the decoder cuts sweeps where it likes: the stream is compared whole). The tolerance is the
     decoder's own: a constant 10 m in the packets decodes to 9.997-10.000 m (VLP-16)."""
-    from data_tools.velodyne_pcap import VelodynePcapSequence
+    from data_tools.formats.velodyne_pcap import VelodynePcapSequence
 
     path, frames, sensor = vlp16_sim
     seq = VelodynePcapSequence(path)
@@ -107,7 +107,7 @@ def test_simulate_writes_the_capture_beside_the_sequence(tmp_path):
 
     from typer.testing import CliRunner
 
-    from data_tools.velodyne_pcap import VelodynePcapSequence
+    from data_tools.formats.velodyne_pcap import VelodynePcapSequence
     from prc_slam.cli import app
 
     res = CliRunner().invoke(

@@ -1,5 +1,5 @@
 """Neighbour lists of large voxel grids walked in two halves side by side
-(prc_slam.voxels._merge_neighbours): the same lists as one walk and as the 27 hash probes."""
+(prc_slam.util.voxels._merge_neighbours): the same lists as one walk and as the 27 hash probes."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import prc_slam.voxels as V
-from prc_slam.voxels import VoxelGrid, _hash_neighbours, _merge_neighbours
+import prc_slam.util.voxels as V
+from prc_slam.util.voxels import VoxelGrid, _hash_neighbours, _merge_neighbours
 
 
 @settings(max_examples=20, deadline=None)

@@ -16,7 +16,7 @@ from numba import njit
 
 from data_tools.errors import DataError
 from data_tools.organize.polar import fast_atan2
-from prc_slam.threads import in_threads
+from prc_slam.util.threads import in_threads
 
 #: beams method: share of points within a quarter beam gap of their beam below which the
 #: elevations show no beam structure (uniform elevations give ~0.5)

@@ -424,7 +424,7 @@ def write_cloud(cloud: SimCloud, path: str | Path) -> Path:
     las.intensity = (cloud.intensity * 257).astype(np.uint16)
     las.instance = cloud.instance
     path.parent.mkdir(parents=True, exist_ok=True)
-    from data_tools.laz import laz_backend
+    from data_tools.formats.laz import laz_backend
 
     try:
         las.write(path, do_compress=path.suffix.lower() == ".laz", laz_backend=laz_backend(path))

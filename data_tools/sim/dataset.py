@@ -21,11 +21,11 @@ import numpy as np
 import yaml
 
 from data_tools.errors import DataError
-from data_tools.kitti import read_kitti_poses, read_times
-from data_tools.npz import save_npz
+from data_tools.formats.kitti import read_kitti_poses, read_times
+from data_tools.formats.npz import save_npz
+from data_tools.formats.trajectory_io import write_kitti_poses
 from data_tools.sequence import SequenceBase
 from data_tools.sim.simulator import NOISE_KINDS, SimConfig, SimFrame, Simulator
-from data_tools.trajectory_io import write_kitti_poses
 from prc_slam import labels as L
 from prc_slam.scan import Scan, sensor_from_description
 

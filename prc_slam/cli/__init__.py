@@ -2,7 +2,7 @@
 
 Commands only parse options and call the library (:mod:`prc_slam.jobs`); every user error takes
 one path (:func:`prc_slam.cli.common.handles_errors`); the console entry point is
-:func:`prc_slam.launcher.main`: one line ``error: <option or file>:
+:func:`prc_slam.__main__.main`: one line ``error: <option or file>:
 <problem>`` and exit 2; Ctrl-C exits 130 with one line.
 """
 

@@ -20,7 +20,7 @@ def bench(
     json_path: Path | None = JSON_OPT,
 ) -> None:
     """Throughput of each stage on its reference input (single process)."""
-    from prc_slam.benchmark import run_bench
+    from prc_slam.jobs.bench import run_bench
     from prc_slam.jobs.common import write_json
 
     check_outputs(json_path=(json_path, "file"))

@@ -176,7 +176,7 @@ def detect(
         for name, o in metrics.get("objects", {}).items():
             console.print(f"{name} objects found: {o['found']} of {o['present']}", highlight=False)
         if "vehicle_by_range" in metrics:
-            from prc_slam.scoring import range_table
+            from prc_slam.evaluation.scoring import range_table
 
             print_table(range_table(metrics["vehicle_by_range"], "vehicle instances and points by range"))
     if json_path is not None:

@@ -313,8 +313,8 @@ def print_table(table: Table) -> None:
 
 def class_table(metrics: dict[str, Any], title: str) -> Table:
     """Per-class precision / recall / F1; a class the method never outputs is said so, with no
-    scores (:func:`prc_slam.report.class_rows`)."""
-    from prc_slam.report import class_rows
+    scores (:func:`prc_slam.jobs.report.class_rows`)."""
+    from prc_slam.jobs.report import class_rows
 
     table = Table(title=title)
     for col in ("class", "support", "precision", "recall", "f1"):
@@ -329,8 +329,8 @@ def class_table(metrics: dict[str, Any], title: str) -> Table:
 
 
 def variant_table(metrics: dict[str, Any], title: str) -> Table:
-    """The odometry variants' figures; a missing KITTI drift says why (:func:`prc_slam.report.variant_cell`)."""
-    from prc_slam.report import FIELDS, variant_cell
+    """The odometry variants' figures; a missing KITTI drift says why (:func:`prc_slam.jobs.report.variant_cell`)."""
+    from prc_slam.jobs.report import FIELDS, variant_cell
 
     variants = metrics["variants"]
     fields = [f for f in FIELDS if any(f in m for m in variants.values())]

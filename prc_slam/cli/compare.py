@@ -175,13 +175,13 @@ def compare(
     if run.online is not None and "per_class" in run.online:
         print_table(class_table(run.online, "online detectors against the reference"))
         if "vehicle_by_range" in run.online:
-            from prc_slam.scoring import range_table
+            from prc_slam.evaluation.scoring import range_table
 
             print_table(range_table(run.online["vehicle_by_range"], "vehicle instances and points by range"))
     if mapclass:
         from prc_slam.cli.mapclass import print_mapclass
         from prc_slam.jobs.mapclass import compare_mapclass
-        from prc_slam.report import mapclass_section
+        from prc_slam.jobs.report import mapclass_section
 
         variant = next((v for v in names if v != "raw"), names[0])
         opts = input_options(topic, meta, model, rows, cols, organize=organize)

@@ -144,7 +144,7 @@ def mapclass(
 
     The tiles run on a Dask cluster with --scheduler or --workers, and on the scheduler at
     $DASK_SCHEDULER_ADDRESS when that is set."""
-    from data_tools.clouds import is_cloud_file
+    from data_tools.formats.clouds import is_cloud_file
     from prc_slam.config import Config
     from prc_slam.jobs.common import Viewer, write_json
     from prc_slam.jobs.mapclass import mapclass_job, refuse_sequence_options

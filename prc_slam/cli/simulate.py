@@ -56,7 +56,7 @@ def simulate(
     sweeps are also written as VLP-16 / HDL-32E data packets (``prc-slam live``, ``replay``)."""
     check_outputs(out=(out, "any"), kitti=(kitti, "dir"))
     if pcap is not None:
-        from data_tools.velodyne_packets import capture_format
+        from data_tools.formats.velodyne_packets import capture_format
 
         capture_format(sensor.value)  # the one-line error for other sensors
         check_outputs(pcap=(pcap, "file"))
@@ -83,7 +83,7 @@ def simulate(
     sim = Simulator(cfg)
     capture = None
     if pcap is not None:
-        from data_tools.velodyne_packets import SimCapture
+        from data_tools.formats.velodyne_packets import SimCapture
 
         capture = SimCapture(pcap, sim.sensor, sensor.value)
 

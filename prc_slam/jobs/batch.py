@@ -390,7 +390,7 @@ def _compare(job: CompareJob, source: Path, out: Path) -> dict[str, Any]:
     write_outputs(run, cfg, out, f"Odometry comparison on {source}")
     if job.mapclass:
         from prc_slam.jobs.mapclass import compare_mapclass
-        from prc_slam.report import mapclass_section
+        from prc_slam.jobs.report import mapclass_section
 
         variant = next((v for v in job.variants if v != "raw"), job.variants[0])
         mc = compare_mapclass(

@@ -8,12 +8,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from prc_slam.evaluation.scoring import OnlineScorer, PRCScorer
 from prc_slam.jobs.common import Viewer, frames_of, open_input
 from prc_slam.jobs.progress import Reporter
 from prc_slam.jobs.sinks import LabelFiles, LasFile, ViewerSink
 from prc_slam.pipeline import Pipeline
 from prc_slam.prc.config import AutoPreset, PRCConfig
-from prc_slam.scoring import OnlineScorer, PRCScorer
 
 log = logging.getLogger("prc_slam.jobs")
 

@@ -16,7 +16,7 @@ from prc_slam.jobs.common import Viewer, frames_of, open_input, write_json
 from prc_slam.jobs.progress import Reporter
 from prc_slam.jobs.sinks import ViewerSink
 from prc_slam.pipeline import Pipeline, PipelineFrame, PipelineResult
-from prc_slam.signals import frame_boundaries
+from prc_slam.util.signals import frame_boundaries
 
 log = logging.getLogger("prc_slam")
 
@@ -37,7 +37,7 @@ class Interrupted(KeyboardInterrupt):
     """A run stopped by Ctrl-C (or SIGTERM) after ``done`` of ``total`` frames. ``run`` holds what
     those frames produced (metrics marked ``interrupted``), or None when the frame in progress
     could not be finished (a first interrupt waits for it up to a few seconds:
-    :func:`prc_slam.signals.frame_boundaries`); ``recording`` is the partial ``.rrd`` written, if
+    :func:`prc_slam.util.signals.frame_boundaries`); ``recording`` is the partial ``.rrd`` written, if
     any."""
 
     def __init__(self, done: int, total: int, run: OdometryRun | None, recording: Path | None) -> None:
@@ -89,8 +89,8 @@ def run_odometry(
     **open_options: Any,
 ) -> tuple[OdometryRun, dict[int, np.ndarray]]:
     """Run the odometry variants (and the online detectors with ``online``) over ``input``."""
+    from prc_slam.evaluation.scoring import OnlineScorer, PRCScorer
     from prc_slam.odometry.compare import OdometryVariants
-    from prc_slam.scoring import OnlineScorer, PRCScorer
 
     variants = list(variants)
     stage = OdometryVariants(config, variants)
@@ -216,8 +216,8 @@ def unchecked_health_note(frames: int | None, warm_up: int) -> str | None:
 def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> list[Path]:
     """report.md, metrics.json, trajectories (KITTI and TUM), config.yaml, trajectories.png and
     frames.txt (the time and input frame of each line of the KITTI-format trajectories)."""
-    from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
-    from prc_slam.report import classification_section, write_compare_outputs
+    from data_tools.formats.trajectory_io import write_kitti_poses, write_tum_poses
+    from prc_slam.jobs.report import classification_section, write_compare_outputs
 
     if run.metrics.get("interrupted"):  # the report's first line says so
         k, n = run.metrics["interrupted_at_frame"], run.metrics["frames_in_input"]
@@ -251,7 +251,7 @@ def write_outputs(run: OdometryRun, config: Config, out: Path, title: str) -> li
 
 def trajectory_file(run: OdometryRun, name: str, path: Path, pose_format: str = "kitti") -> Path:
     """Write one variant's trajectory (KITTI or TUM text, readable by evo)."""
-    from data_tools.trajectory_io import write_kitti_poses, write_tum_poses
+    from data_tools.formats.trajectory_io import write_kitti_poses, write_tum_poses
 
     poses = run.result.estimate_in_world(name)
     if pose_format == "kitti":

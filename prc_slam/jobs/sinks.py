@@ -25,7 +25,7 @@ class LabelFiles:
         self.written = 0
 
     def frame(self, step: PipelineFrame) -> None:
-        from data_tools.writers import write_label_file
+        from data_tools.formats.writers import write_label_file
 
         write_label_file(self.out / f"{step.scan.name}.label", _codes(step, self.source))
         self.written += 1
@@ -53,7 +53,7 @@ class LasFile:
     def close(self, result: PipelineResult) -> None:
         if not self.parts or result.interrupted:
             return
-        from data_tools.writers import write_las
+        from data_tools.formats.writers import write_las
 
         write_las(
             self.path,

@@ -7,7 +7,7 @@ delivered no packet of a loopback replay of the shared captures before its timeo
 (``ClientTimeout``), and it listens on the sensor's configured ports only. So the packets are
 received here (one UDP socket, any port, as for Velodyne) and decoded with the SDK's
 ``PacketFormat`` and ``FrameBatcher`` from the metadata, exactly as the offline reader
-(:class:`data_tools.ouster_pcap.OusterPcapSequence`) decodes a capture: a sweep is a run of lidar
+(:class:`data_tools.formats.ouster_pcap.OusterPcapSequence`) decodes a capture: a sweep is a run of lidar
 packets of one frame id (a new frame id, or the measurement ids starting again, closes it),
 batched into a fresh ``LidarFrame``, and turned into a Scan by the offline reader's own code.
 """
@@ -21,13 +21,13 @@ from typing import Any
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.ouster_pcap import OusterPcapSequence
+from data_tools.formats.ouster_pcap import OusterPcapSequence
 
 log = logging.getLogger("prc_slam")
 
 
 class LiveOusterFrames(OusterPcapSequence):
-    """:class:`~data_tools.ouster_pcap.OusterPcapSequence` over frames batched from received
+    """:class:`~data_tools.formats.ouster_pcap.OusterPcapSequence` over frames batched from received
     packets (``lidar_frames``, ``frame_ids`` by sweep index) instead of a capture's."""
 
     lidar_frames: dict[int, Any]
@@ -49,7 +49,7 @@ class OusterAssembler:
     """
 
     def __init__(self, name: str, meta: Path | None, destaggered: bool = True) -> None:
-        from data_tools.ouster_pcap import load_sensor_info
+        from data_tools.formats.ouster_pcap import load_sensor_info
 
         if meta is None:
             raise DataError(f"{name}: ouster:// needs the sensor's metadata json (--meta)")

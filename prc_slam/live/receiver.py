@@ -3,9 +3,9 @@ bounded queue.
 
 The receiver never waits on processing: it puts each completed sweep in a :class:`SweepQueue`,
 which drops its oldest *whole* sweep when full (counted). Velodyne packets go through the same
-``velodyne-decoder`` stream decoder as the offline reader (:mod:`data_tools.velodyne_pcap`), so
+``velodyne-decoder`` stream decoder as the offline reader (:mod:`data_tools.formats.velodyne_pcap`), so
 that a live run over a replayed capture cuts the same sweeps; the consumer organises them with the
-offline reader's own :meth:`~data_tools.velodyne_pcap.VelodynePcapSequence.scan_of`.
+offline reader's own :meth:`~data_tools.formats.velodyne_pcap.VelodynePcapSequence.scan_of`.
 
 Packet loss is counted per sweep from gaps in the packets' GPS timestamps; datagrams that are not
 data packets of the sensor are skipped and counted; data packets from a second sender while the
@@ -149,7 +149,7 @@ class VelodyneAssembler:
     """Velodyne data packets → whole sweeps, with the offline reader's decoder and settings.
 
     The model comes from the first data packet's factory byte; ``scan_of`` organises a sweep as
-    :class:`~data_tools.velodyne_pcap.VelodynePcapSequence` does (same organiser, same names).
+    :class:`~data_tools.formats.velodyne_pcap.VelodynePcapSequence` does (same organiser, same names).
     """
 
     def __init__(self, name: str, model: str | None = None) -> None:
@@ -164,7 +164,7 @@ class VelodyneAssembler:
         self._period_us: float | None = None
 
     def _start(self, payload: bytes) -> None:
-        from data_tools.velodyne_pcap import FACTORY_MODELS
+        from data_tools.formats.velodyne_pcap import FACTORY_MODELS
 
         entry = FACTORY_MODELS.get(payload[-1])
         model = self.forced_model or (None if entry is None else entry[0])
@@ -182,7 +182,7 @@ class VelodyneAssembler:
         :meth:`scan_of`)."""
         import velodyne_decoder as vd
 
-        from data_tools.velodyne_pcap import MODEL_LASERS, VelodynePcapSequence
+        from data_tools.formats.velodyne_pcap import MODEL_LASERS, VelodynePcapSequence
 
         reader = VelodynePcapSequence.__new__(VelodynePcapSequence)
         reader._vd = vd
@@ -206,7 +206,7 @@ class VelodyneAssembler:
 
     def feed(self, payload: bytes, now_wall: float) -> tuple[float, np.ndarray, int] | None:
         """Decode one data packet; a completed sweep as (stamp, points, lost packets), else None."""
-        from data_tools.velodyne_pcap import _stamp
+        from data_tools.formats.velodyne_pcap import _stamp
 
         if self.reader is None:
             self._start(payload)
@@ -222,7 +222,7 @@ class VelodyneAssembler:
 
     def finish(self) -> tuple[float, np.ndarray, int] | None:
         """The sweep being assembled, as it is (the end of the stream), else None."""
-        from data_tools.velodyne_pcap import _stamp
+        from data_tools.formats.velodyne_pcap import _stamp
 
         if self.decoder is None:
             return None
@@ -243,7 +243,7 @@ class VelodyneAssembler:
 
 
 def is_velodyne_data(payload: bytes) -> bool:
-    from data_tools.velodyne_pcap import is_data_packet
+    from data_tools.formats.velodyne_pcap import is_data_packet
 
     return is_data_packet(payload)
 

@@ -1,6 +1,6 @@
 """Replaying a packet capture onto the wire: its UDP payloads sent with their recorded spacing.
 
-Velodyne and Ouster captures (any pcap / pcapng :class:`data_tools.velodyne_pcap.Capture` reads):
+Velodyne and Ouster captures (any pcap / pcapng :class:`data_tools.formats.velodyne_pcap.Capture` reads):
 the capture's main stream (the destination port carrying the most bytes: the lidar data; an
 Ouster's IMU packets and a Velodyne's position packets are left out) is sent to one address,
 loopback unless another host is named. ``rate`` scales the speed, ``loop`` repeats the capture,
@@ -51,7 +51,7 @@ def parse_target(text: str, default_port: int | None) -> tuple[str, int | None]:
 
 def main_port(path: Path, scan_packets: int = 4000) -> int:
     """The destination port carrying the most bytes among the capture's first packets."""
-    from data_tools.velodyne_pcap import Capture
+    from data_tools.formats.velodyne_pcap import Capture
 
     volume: Counter[int] = Counter()
     for _t, src, payload in Capture(path, max_packets=scan_packets):
@@ -73,7 +73,7 @@ def replay(
     stop: threading.Event | None = None,
 ) -> ReplayStats:
     """Send the capture's main stream to ``host:port`` (the capture's own port when None)."""
-    from data_tools.velodyne_pcap import Capture
+    from data_tools.formats.velodyne_pcap import Capture
 
     path = Path(path)
     if not path.is_file():

@@ -154,14 +154,14 @@ class FilteredMcap:
     (on Ctrl-C / SIGTERM too, since the run ends normally then)."""
 
     def __init__(self, path: Path, variant: str, topic: str = "/points_filtered") -> None:
-        from data_tools.stream_out import RosCloudWriter
+        from data_tools.formats.stream_out import RosCloudWriter
 
         self.path, self.variant = Path(path), variant
         self.writer = RosCloudWriter(self.path, "mcap", topic, overwrite=True)
         self.frames = 0
 
     def frame(self, step: PipelineFrame) -> None:
-        from data_tools.rosbag import DATATYPE_CODES, CloudMessage, Field
+        from data_tools.formats.rosbag import DATATYPE_CODES, CloudMessage, Field
 
         rec = step.odometry
         scan = step.scan

@@ -41,8 +41,8 @@ from prc_slam.mapclass.objects import (
     under_crown,
 )
 from prc_slam.mapclass.order import is_local, spatial_order
-from prc_slam.threads import side_by_side
-from prc_slam.voxels import VoxelGrid
+from prc_slam.util.threads import side_by_side
+from prc_slam.util.voxels import VoxelGrid
 
 #: the Sec. 4.2 building voxel (m; :func:`detect_buildings`' default)
 BUILDING_VOXEL = 0.33

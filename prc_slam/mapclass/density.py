@@ -21,8 +21,8 @@ from functools import partial
 
 import numpy as np
 
-from prc_slam.threads import side_by_side
-from prc_slam.voxels import voxel_counts
+from prc_slam.util.threads import side_by_side
+from prc_slam.util.voxels import voxel_counts
 
 
 def surface_density(points: np.ndarray, voxel: float = 1.0, min_count: float = 8.0) -> float:

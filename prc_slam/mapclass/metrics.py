@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from prc_slam.threads import side_by_side
-from prc_slam.voxels import VoxelGrid, find, group_members, radix_passes
+from prc_slam.util.threads import side_by_side
+from prc_slam.util.voxels import VoxelGrid, find, group_members, radix_passes
 
 
 def local_density(points: np.ndarray, voxel: float) -> tuple[np.ndarray, VoxelGrid]:
@@ -324,7 +324,7 @@ def stable_argsort(key: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def _float_radix_passes(key, k1, i1, k2, i2):
-    """The passes of :func:`stable_argsort` (:func:`prc_slam.voxels.radix_passes` on the keys'
+    """The passes of :func:`stable_argsort` (:func:`prc_slam.util.voxels.radix_passes` on the keys'
     bit patterns in unsigned order); True when the order ended in ``i2``."""
     bits = (key + 0.0).view(np.uint64)  # + 0.0: -0.0 -> 0.0
     sign = np.uint64(1) << np.uint64(63)

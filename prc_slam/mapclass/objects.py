@@ -12,7 +12,7 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from prc_slam.mapclass.metrics import segment_density
-from prc_slam.voxels import VoxelGrid, _rehash32, _table_size, find, find_cell, group_members, voxel_counts
+from prc_slam.util.voxels import VoxelGrid, _rehash32, _table_size, find, find_cell, group_members, voxel_counts
 
 
 @njit(cache=True, nogil=True)

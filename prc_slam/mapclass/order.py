@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from prc_slam.voxels import radix_passes
+from prc_slam.util.voxels import radix_passes
 
 #: bits of the Morton key per axis (3 x 16 = 48 bits: three 16-bit radix passes at most)
 BITS = 16

@@ -25,7 +25,7 @@ from itertools import combinations, pairwise
 
 import numpy as np
 
-from prc_slam.odometry.classaware import GroupVoxelMap
+from prc_slam.odometry.group_map import GroupVoxelMap
 from prc_slam.odometry.guard import GuardConfig, residuals, rotation_angle
 
 #: points of the current frame taken for the yardstick (evenly spaced in the sensor's order)

@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from prc_slam import evaluation as E
 from prc_slam import labels as L
 from prc_slam.config import Config
+from prc_slam.evaluation import metrics as E
 from prc_slam.filtering import filter_points
 from prc_slam.odometry import classaware
 from prc_slam.odometry.agreement import AgreementMonitor
@@ -232,11 +232,11 @@ def _json_safe(v: Any) -> Any:
 
 
 def _peers():
-    """The peer filters (``prc_slam.peers``), or a clear error naming what is missing."""
+    """The peer filters (``prc_slam.evaluation.peers``), or a clear error naming what is missing."""
     try:
-        from prc_slam import peers
+        from prc_slam.evaluation import peers
     except ImportError as exc:  # the module or its package
-        raise PeerMissing(f"peer variants need prc_slam.peers ({exc})") from exc
+        raise PeerMissing(f"peer variants need prc_slam.evaluation.peers ({exc})") from exc
     return peers
 
 
@@ -301,7 +301,7 @@ def _without(interval: tuple[float, float], holes: list[tuple[float, float]]) ->
 def warm_up_kernels(config: Config) -> None:
     """Compile (or load) the numba kernels of the filter, the deskewing and the guard before
     anything is timed."""
-    from prc_slam.odometry.classaware import GroupVoxelMap
+    from prc_slam.odometry.group_map import GroupVoxelMap
     from prc_slam.odometry.guard import residuals
     from prc_slam.odometry.kiss import deskew_points
 

@@ -42,7 +42,7 @@ from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam.odometry.guard import nearest_map_point
-from prc_slam.voxels import find
+from prc_slam.util.voxels import find
 
 #: a neighbourhood with fewer map points than this has no surface to speak of
 MIN_NEIGHBOURS = 5
@@ -294,7 +294,7 @@ def surface_information(
     lines: bool = False,
 ) -> tuple[np.ndarray, int, np.ndarray]:
     """:func:`information` of registering ``source`` (sensor frame, class group per point) to a
-    :class:`~prc_slam.odometry.classaware.GroupVoxelMap` (``index``) at ``pose``, with KISS-ICP's
+    :class:`~prc_slam.odometry.group_map.GroupVoxelMap` (``index``) at ``pose``, with KISS-ICP's
     correspondences (within ``3 sigma``, weight of kernel ``sigma``) and surfaces within one
     ``voxel`` of each matched map point; at most ``max_points`` source points (evenly strided:
     the eigenvalues' ratios do not depend on the count); ``lines``: see :func:`information`.

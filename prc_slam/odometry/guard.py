@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
-from prc_slam.voxels import find
+from prc_slam.util.voxels import find
 
 
 class OdometryFailure(RuntimeError):
@@ -141,7 +141,7 @@ def nearest_map_point(p, g, table, coords, first, count, mpts, inv_voxel, max_d2
     """The nearest map point of group ``g`` to ``p`` within the 27 voxels around it (KISS-ICP's
     correspondence search) and closer than ``sqrt(max_d2)``: ``(index, squared distance)``,
     ``(-1, max_d2)`` when there is none. Map layout of
-    :class:`~prc_slam.odometry.classaware.GroupVoxelMap`.
+    :class:`~prc_slam.odometry.group_map.GroupVoxelMap`.
 
     Voxels are visited in a fixed order, and one lying farther from ``p`` than the best match so
     far (or than ``sqrt(max_d2)``) is skipped without a look-up: the result is that of visiting
@@ -183,7 +183,7 @@ def nearest_map_point(p, g, table, coords, first, count, mpts, inv_voxel, max_d2
 def residuals(src, src_group, table, coords, first, count, mpts, inv_voxel, max_d2, T):
     """Inliers and their mean distance: each source point (sensor frame, moved by ``T``) to its
     nearest map point of its group within ``sqrt(max_d2)`` (the 27 voxels around it, the search
-    of KISS-ICP's correspondences). Map layout of :class:`~prc_slam.odometry.classaware.GroupVoxelMap`.
+    of KISS-ICP's correspondences). Map layout of :class:`~prc_slam.odometry.group_map.GroupVoxelMap`.
 
     Returns
     -------

@@ -31,6 +31,7 @@ from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam.odometry.degeneracy import Conditioning, DegeneracyConfig, analyse
+from prc_slam.odometry.group_map import GroupVoxelMap
 from prc_slam.odometry.guard import (
     DivergenceMonitor,
     FrameHealth,
@@ -464,8 +465,6 @@ class KissOdometry(GuardedOdometry):
         OdometryFailure
             Non-finite pose, pose jump beyond the guard's bounds, or non-monotonic frame times.
         """
-        from prc_slam.odometry.classaware import GroupVoxelMap
-
         kiss = self.kiss
         if source is not None:
             source = np.asarray(source, dtype=bool)
@@ -537,8 +536,6 @@ class KissOdometry(GuardedOdometry):
         (:class:`~prc_slam.odometry.classaware.ClassAwareOdometry` with its anchors) and keeps
         this one in step to fall back on."""
         from kiss_icp.voxelization import voxel_down_sample
-
-        from prc_slam.odometry.classaware import GroupVoxelMap
 
         kiss = self.kiss
         pts, times, _, t_ref, _ = self._prepare(points, times, frame_time)

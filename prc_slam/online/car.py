@@ -38,7 +38,7 @@ from numba import njit
 from prc_slam.online import kernels as K
 from prc_slam.online.coarse import CoarseResult, line_values
 from prc_slam.scan import ProfilerSensor, Scan
-from prc_slam.voxels import VoxelGrid
+from prc_slam.util.voxels import VoxelGrid
 
 H, V, M = 0, 1, 2
 A_REGULAR = np.array([[0.8, 0.1, 0.1], [0.09, 0.9, 0.01], [0.6, 0.3, 0.1]])

@@ -22,7 +22,7 @@ from numba import njit
 from prc_slam import labels as L
 from prc_slam.online import kernels as K
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
-from prc_slam.threads import in_threads
+from prc_slam.util.threads import in_threads
 
 PROFILER_START_RADIUS = 10.0  # m, see scan_lines
 

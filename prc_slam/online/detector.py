@@ -9,7 +9,7 @@ Sec. 6, for curb faces; the column ground where columns are too short for Sec. 5
 ``OnlineDetector.paper()`` keeps the paper's per-column car algorithm on every sensor.
 
 With more than one numba thread the coarse classifier splits its lines between threads and the
-curb detectors run beside the spinning car path (:mod:`prc_slam.threads`); the results are
+curb detectors run beside the spinning car path (:mod:`prc_slam.util.threads`); the results are
 the same with any thread count (``NUMBA_NUM_THREADS=1``: everything in the calling thread).
 """
 
@@ -37,7 +37,7 @@ from prc_slam.online.spinning import (
 )
 from prc_slam.prc.ground import GroundModelError, beam_order, ground_plane, levelling_rotation
 from prc_slam.scan import ProfilerSensor, Scan, SpinningSensor
-from prc_slam.threads import side_by_side
+from prc_slam.util.threads import side_by_side
 
 #: a stream of spinning sweeps whose first ground plane tilts more than this (deg) is levelled for
 #: the detectors, every sweep (:meth:`OnlineDetector.level_sweep`): they measure heights along the

@@ -26,7 +26,7 @@ from numba import njit
 from prc_slam import labels as L
 from prc_slam.online.coarse import CoarseResult, LineReturns
 from prc_slam.scan import Scan
-from prc_slam.threads import in_threads
+from prc_slam.util.threads import in_threads
 
 HISTORY = 500
 

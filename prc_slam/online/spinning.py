@@ -78,11 +78,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from prc_slam import unionfind as uf
 from prc_slam.online.car import oriented_boxes_of
 from prc_slam.online.coarse import elevation_rows
 from prc_slam.scan import Scan, SpinningSensor
-from prc_slam.threads import in_threads
+from prc_slam.util import unionfind as uf
+from prc_slam.util.threads import in_threads
 
 
 @dataclass(frozen=True)
@@ -1038,7 +1038,7 @@ def detect_curbs_spinning(
     per curb (the mean return of each column, in column order), sensor frame.
     """
     from prc_slam.online.curb import _polylines
-    from prc_slam.voxels import VoxelGrid
+    from prc_slam.util.voxels import VoxelGrid
 
     rows, cols = scan.shape
     xyz = scan.slot_xyz64()

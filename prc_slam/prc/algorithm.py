@@ -37,7 +37,7 @@ from prc_slam.prc.ground import (
     seed_in_frame,
 )
 from prc_slam.scan import Scan, SensorModel, SpinningSensor
-from prc_slam.threads import ThreadUse, in_threads, side_by_side
+from prc_slam.util.threads import ThreadUse, in_threads, side_by_side
 
 log = logging.getLogger("prc_slam.prc")
 
@@ -202,7 +202,7 @@ def support_and_background(
     return out
 
 
-#: the process-wide :class:`~prc_slam.threads.ThreadUse` of :func:`prc_block`: row chunks of the
+#: the process-wide :class:`~prc_slam.util.threads.ThreadUse` of :func:`prc_block`: row chunks of the
 #: support, and the column ground beside the segmentation (three threaded steps a block); on a free
 #: core they save about a third of a KITTI sweep's PRC time
 THREADS = ThreadUse(THREADED_SLOTS)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from prc_slam import unionfind as uf
+from prc_slam.util import unionfind as uf
 
 
 @njit(cache=True, nogil=True)

@@ -25,8 +25,8 @@ from itertools import pairwise
 import numpy as np
 from numba import njit, prange
 
-from prc_slam import unionfind as uf
-from prc_slam.threads import side_by_side
+from prc_slam.util import unionfind as uf
+from prc_slam.util.threads import side_by_side
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -465,7 +465,7 @@ def _merge_neighbours(coords: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     :func:`_neighbours` without the empty slots: a merge walk over the voxels sorted by linear
     key, one monotone pointer per (dx, dy) column, writing the lists in sorted order; then each
     list moved to its voxel's place in input order. Large grids walk and move their two halves
-    of the sorted order side by side (:func:`prc_slam.threads.side_by_side`; the same lists).
+    of the sorted order side by side (:func:`prc_slam.util.threads.side_by_side`; the same lists).
     ``start`` is empty when the keys overflow."""
     nv = len(coords)
     sorted_keys = _sorted_keys(coords)

@@ -330,7 +330,7 @@ def read_las_fields(path: str | Path) -> dict[str, np.ndarray]:
     """A ``.las`` / ``.laz`` cloud's coordinates and point dimensions as fields (LAZ via lazrs)."""
     import laspy
 
-    from data_tools.laz import laz_backend
+    from data_tools.formats.laz import laz_backend
 
     path = Path(path)
     backend = laz_backend(path)
@@ -530,8 +530,8 @@ class SweepFolder(SequenceBase):
         self.poses = None
         self.times = None
         if times_file is not None and times_file.is_file():
-            from data_tools.kitti import read_times
-            from data_tools.trajectory_io import warn_time_gaps
+            from data_tools.formats.kitti import read_times
+            from data_tools.formats.trajectory_io import warn_time_gaps
 
             t = read_times(times_file)
             if len(t) != len(self.files):

@@ -1,5 +1,5 @@
 """Point-cloud files for map classification: LAS/LAZ (streamed in chunks with laspy; LAZ through
-the ``lazrs`` backend), PCD and PLY (:mod:`data_tools.pcd`), NPY (an ``(N, 3)`` array,
+the ``lazrs`` backend), PCD and PLY (:mod:`data_tools.formats.pcd`), NPY (an ``(N, 3)`` array,
 memory-mapped; ``(N, k > 3)``: x, y, z are the first three columns; a structured array: its
 ``x``, ``y``, ``z`` fields), NPZ (such an array, alone or named ``points`` / ``xyz``; an Ouster
 sweep ``.npz`` is a sequence, not a cloud).
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.laz import laz_backend, open_las  # noqa: F401 (laz_backend: importable from here too)
+from data_tools.formats.laz import laz_backend, open_las  # noqa: F401 (laz_backend: importable from here too)
 
 CLOUD_SUFFIXES = (".las", ".laz", ".ply", ".pcd", ".npy")
 #: a horizontal extent below this (in the file's units) with a vertical one 100 times larger,
@@ -214,13 +214,13 @@ def cloud_chunks(path: str | Path, chunk: int = 2_000_000) -> Iterator[np.ndarra
         xyz = _array_xyz(path, arr)
         stored = max((arr.dtype[a] for a in "xyz"), key=lambda d: d.itemsize) if arr.dtype.names else xyz.dtype
     elif suffix == ".pcd":  # our reader: any field type and layout, one-line errors
-        from data_tools.pcd import read_sweep_fields
+        from data_tools.formats.pcd import read_sweep_fields
 
         fields = read_sweep_fields(path)[0]
         stored = max((fields[a].dtype for a in "xyz"), key=lambda d: d.itemsize)
         xyz = np.column_stack([fields["x"], fields["y"], fields["z"]])
     else:  # PLY: our reader (ascii or binary, either endianness; truncation and missing x/y/z said)
-        from data_tools.pcd import read_ply
+        from data_tools.formats.pcd import read_ply
 
         fields = read_ply(path)
         missing = [a for a in "xyz" if a not in fields]

@@ -5,7 +5,7 @@ the UDP lidar packets (any packet profile the SDK knows: legacy, single/dual ret
 data rate ``RNG15_RFL8_NIR8``, ...) into organised ``LidarFrame`` images in measurement order
 (staggered), with per-column timestamps and status. Of a dual-return profile the first (strongest)
 return is read, with a warning (``field="RANGE2"`` reads the second). Each frame becomes the same Scan
-:func:`data_tools.ouster.ouster_scan` builds from a decoded ``.npz`` (ranges, reflectivity,
+:func:`data_tools.formats.ouster.ouster_scan` builds from a decoded ``.npz`` (ranges, reflectivity,
 column times, beam intrinsics, ``pixel_shift_by_row``), with Cartesian coordinates from the
 SDK's own lookup table (``XYZLut``) expressed in the *lidar* frame, as in ``xyz_lidar_m``.
 
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.ouster import ouster_scan
+from data_tools.formats.ouster import ouster_scan
 from data_tools.sequence import SequenceBase
 from prc_slam.scan import Scan
 
@@ -67,7 +67,7 @@ def load_sensor_info(path: Path, pcap: Path):
 def udp_traffic(path: Path, limit: int = 4) -> str:
     """The capture's UDP traffic in a few words (the busiest destination ports, packet sizes), to
     tell a port or profile that does not match the metadata."""
-    from data_tools.velodyne_pcap import DETECT_BYTES, DETECT_PACKETS, Capture
+    from data_tools.formats.velodyne_pcap import DETECT_BYTES, DETECT_PACKETS, Capture
 
     counts: dict[tuple[int, int], int] = {}
     try:
@@ -90,7 +90,7 @@ class OusterPcapSequence(SequenceBase):
     path : the ``.pcap``
     meta : the sensor metadata json (default: found by :func:`find_metadata`)
     destaggered : shift rows by ``pixel_shift_by_row`` so that columns are azimuths (the default, as
-        :func:`data_tools.ouster.read_ouster_npz`); False: measurement order, the raw stream
+        :func:`data_tools.formats.ouster.read_ouster_npz`); False: measurement order, the raw stream
     field : the range channel to read (``RANGE``; ``RANGE2`` for the second return of dual-return profiles)
 
     Attributes
@@ -118,7 +118,7 @@ class OusterPcapSequence(SequenceBase):
         self.name = path.stem
         self.destaggered = destaggered
         self.field = field
-        from data_tools.velodyne_pcap import check_not_hesai
+        from data_tools.formats.velodyne_pcap import check_not_hesai
 
         check_not_hesai(path)  # (not "no Ouster metadata" or "no lidar packets matching")
         self.meta_path = find_metadata(path, meta)

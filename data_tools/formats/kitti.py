@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from data_tools.errors import DataError
+from data_tools.formats.trajectory_io import read_kitti_poses, read_times, warn_time_gaps
 from data_tools.organize import Organizer
 from data_tools.sequence import ORGANISER_OPTIONS, Reader, SequenceBase, organiser_hints
-from data_tools.trajectory_io import read_kitti_poses, read_times, warn_time_gaps
 from data_tools.units import warn_unless_metres
 from prc_slam import labels as L
 from prc_slam.scan import Scan

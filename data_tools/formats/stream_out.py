@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.pcd import write_pcd
-from data_tools.pointcloud2 import DATATYPE_CODES, POINTCLOUD2, CloudMessage, Field
-from data_tools.rosbag import bag_kind
+from data_tools.formats.pcd import write_pcd
+from data_tools.formats.pointcloud2 import DATATYPE_CODES, POINTCLOUD2, CloudMessage, Field
+from data_tools.formats.rosbag import bag_kind
 from prc_slam import labels as L
 from prc_slam.scan import Scan
 
@@ -378,7 +378,7 @@ class KittiBinWriter(StreamWriter):
         t = np.asarray(self._times)
         np.savetxt(self.out / "times.txt", t - t[0], fmt="%.6e")
         if self.poses is not None and len(self.poses) == len(t):
-            from data_tools.trajectory_io import write_kitti_poses
+            from data_tools.formats.trajectory_io import write_kitti_poses
 
             write_kitti_poses(self.out / "poses.txt", np.asarray(self.poses))
             (self.out / "calib.txt").write_text(

@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from prc_slam import labels as L
-from prc_slam.evaluation import ConfusionAccumulator, objects_found
+from prc_slam.evaluation.metrics import ConfusionAccumulator, objects_found
 from prc_slam.pipeline import PipelineFrame, PipelineResult
 
 #: Reference classes whose points must not be called noise.

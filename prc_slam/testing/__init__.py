@@ -1,7 +1,7 @@
 """Trajectory regression for users' pytest suites.
 
 ``assert_trajectory_close`` compares two trajectories and fails with a readable message (where
-and how far they diverge). The pytest plugin :mod:`prc_slam.pytest_plugin` (registered as an
+and how far they diverge). The pytest plugin :mod:`prc_slam.testing.plugin` (registered as an
 entry point, active wherever prc_slam is installed) adds a ``trajectory_regression`` fixture that
 compares a run against a golden KITTI pose file next to the test and rewrites it with
 ``pytest --update-golden``.
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from prc_slam import evaluation as E
+from prc_slam.evaluation import metrics as E
 
 
 def assert_trajectory_close(estimate: np.ndarray, reference: np.ndarray, ate_tol: float, rpe_tol: float) -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.textfiles import read_numeric_table
+from data_tools.formats.textfiles import read_numeric_table
 
 log = logging.getLogger("prc_slam.readers")
 

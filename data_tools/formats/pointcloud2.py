@@ -371,7 +371,7 @@ def cloud_to_scan(
     """Organise one decoded cloud into a :class:`Scan` (see the module docstring).
 
     ``row_lines`` caches, per ``(height, width)``, whether an organised cloud's rows are scan
-    lines (:func:`data_tools.pcd.rows_are_scan_lines`; a sequence passes one dict for all its
+    lines (:func:`data_tools.formats.pcd.rows_are_scan_lines`; a sequence passes one dict for all its
     clouds, so that the check runs once per grid shape).
 
     The Scan's ``meta["ros"]`` keeps the decoded message (raw bytes, fields, header) so that
@@ -392,7 +392,7 @@ def cloud_to_scan(
             organised = False
             log.info("%s: organised cloud whose rows are not rings; organised from its %s field", source, ring_name)
     if organised and ring is None:  # one firing per row (height = columns, width = beams)?
-        from data_tools.pcd import rows_are_scan_lines
+        from data_tools.formats.pcd import rows_are_scan_lines
 
         key = (cloud.height, cloud.width)
         lines = row_lines.get(key) if row_lines is not None else None

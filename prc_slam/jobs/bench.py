@@ -65,7 +65,7 @@ def bench_prc(kitti_dir: Path | None = None, repeat: int = 30) -> dict[str, Any]
         "ratio_to_yardstick": sec / yard,
     }
     if kitti_dir is not None and (kitti_dir / "velodyne").is_dir():
-        from data_tools.kitti import KittiSequence
+        from data_tools.formats.kitti import KittiSequence
 
         seq = KittiSequence(kitti_dir)
         scans = [seq[i] for i in range(min(3, len(seq)))]
@@ -356,10 +356,10 @@ def bench_peers(
     """
     from data_tools import open_dataset
     from prc_slam import labels as L
-    from prc_slam import peers
+    from prc_slam.evaluation import peers
+    from prc_slam.evaluation.scoring import SOLID_CLASSES
     from prc_slam.prc.algorithm import warm_up
     from prc_slam.prc.ground import GroundState, column_ground
-    from prc_slam.scoring import SOLID_CLASSES
 
     warm_up()
     cfg = PRCConfig.preset("multibeam")
@@ -374,7 +374,7 @@ def bench_peers(
     if kitti_dir is None or not (Path(kitti_dir) / "velodyne").is_dir():
         out["ground"] = {"skipped": f"no KITTI sequence at {kitti_dir}"}
     else:
-        from data_tools.kitti import read_velodyne_bin
+        from data_tools.formats.kitti import read_velodyne_bin
 
         ds = open_dataset(kitti_dir)
         n = len(ds)
@@ -573,7 +573,7 @@ def bench_organize(kitti_dir: Path | None = None, repeat: int = 15) -> dict[str,
     out["points_per_s"] = out["ring_major_points_per_s"]
     out["ratio_to_yardstick"] = out["ring_major_ms_per_sweep"] / out["yardstick_sort_ms"]
     if kitti_dir is not None and (kitti_dir / "velodyne").is_dir():
-        from data_tools.kitti import KittiSequence, read_velodyne_bin
+        from data_tools.formats.kitti import KittiSequence, read_velodyne_bin
 
         cfg = PRCConfig.preset("urban")
         seq = KittiSequence(kitti_dir)
@@ -621,9 +621,9 @@ def bench_live(frames: int = 60, rate_hz: float = 10.0) -> dict[str, Any]:
     import multiprocessing as mp
     import tempfile
 
+    from data_tools.formats.velodyne_packets import SimCapture
     from data_tools.sim.dataset import write_sequence
     from data_tools.sim.simulator import SimConfig, Simulator
-    from data_tools.velodyne_packets import SimCapture
     from prc_slam.config import Config
     from prc_slam.live.replay import replay_when_told
     from prc_slam.live.run import LiveOptions, run_live

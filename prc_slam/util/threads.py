@@ -28,7 +28,7 @@ def numba_threads() -> int:
     """``numba.get_num_threads()`` without starting numba's thread pool: until a parallel kernel
     (or ``numba.set_num_threads``) has started it, the configured count (``NUMBA_NUM_THREADS``).
     Asking the pool starts its OpenMP threads, after which this process can no longer be forked
-    safely (:mod:`prc_slam.frame_process`); splitting work across plain threads does not need it."""
+    safely (:mod:`prc_slam.util.frame_process`); splitting work across plain threads does not need it."""
     from numba.np.ufunc import parallel
 
     if getattr(parallel, "_is_initialized", True):

@@ -11,7 +11,7 @@ import laspy
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.laz import laz_backend
+from data_tools.formats.laz import laz_backend
 from prc_slam import labels as L
 
 
@@ -112,7 +112,7 @@ class ClassSplitWriter:
     one LAS 1.4 file per class present (``<class name>.las``), written chunk by chunk. When the
     combined name ends in ``.laz`` every file is LAZ-compressed (``<class name>.laz``). ``crs``:
     the input's coordinate reference system records, written in every file; ``grid``: the input's
-    ``(scales, offsets)`` (a LAS input's, :func:`data_tools.clouds.cloud_grid`), so that every
+    ``(scales, offsets)`` (a LAS input's, :func:`data_tools.formats.clouds.cloud_grid`), so that every
     point keeps its stored coordinates (default: 1 mm from the first chunk's minimum).
 
     Use as a context manager; ``write(xyz, codes)`` may be called any number of times.
@@ -127,7 +127,7 @@ class ClassSplitWriter:
     ) -> None:
         self.out_dir = Path(out_dir)
         self.combined_name = combined
-        self.crs = list(crs or [])  # the input's CRS VLRs (data_tools.clouds.cloud_crs), written in every file
+        self.crs = list(crs or [])  # the input's CRS VLRs (data_tools.formats.clouds.cloud_crs), written in every file
         self.grid = grid
         self._writers: dict[str, laspy.LasWriter] = {}
         self._header: laspy.LasHeader | None = None

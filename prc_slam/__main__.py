@@ -1,6 +1,6 @@
 """The ``prc-slam`` console entry point.
 
-It imports nothing heavy before taking over Ctrl-C and SIGTERM (:mod:`prc_slam.signals`), so
+It imports nothing heavy before taking over Ctrl-C and SIGTERM (:mod:`prc_slam.util.signals`), so
 that an interrupt at any moment (also while numpy, numba or Open3D are still loading, where it
 surfaces as an ``ImportError``) ends with one line ``error: interrupted ...`` and exit code 130
 (143 for SIGTERM), the process's children ended, and no tear-down noise from half-loaded
@@ -13,14 +13,14 @@ import os
 import signal
 import sys
 
-from prc_slam import signals
-from prc_slam.signals import REDELIVER_S, _in_native_callback  # noqa: F401  (kept importable from here)
+from prc_slam.util import signals
+from prc_slam.util.signals import REDELIVER_S, _in_native_callback  # noqa: F401  (kept importable from here)
 
 _interrupted = False
 
 
 def _on_sigint(signum, frame):
-    """SIGINT and SIGTERM: :func:`prc_slam.signals.on_signal`, remembered for the exit."""
+    """SIGINT and SIGTERM: :func:`prc_slam.util.signals.on_signal`, remembered for the exit."""
     global _interrupted
     _interrupted = True
     signals.on_signal(signum, frame)

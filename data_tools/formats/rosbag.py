@@ -10,7 +10,7 @@ definitions (rosbag2 before Iron: bag format 1-7 metadata, sqlite3 storage witho
 the packet types of :data:`PACKET_DEFINITIONS` (:func:`open_reader`); a topic whose type is
 neither defined nor known is refused, naming it.
 
-The messages are decoded and organised by :mod:`data_tools.pointcloud2`.
+The messages are decoded and organised by :mod:`data_tools.formats.pointcloud2`.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.pointcloud2 import (  # noqa: F401 (also importable from here)
+from data_tools.formats.pointcloud2 import (  # noqa: F401 (also importable from here)
     DATATYPE_CODES,
     POINTCLOUD2,
     CloudMessage,
@@ -89,7 +89,7 @@ VELODYNE_SCAN = ("velodyne_msgs/msg/VelodyneScan", "velodyne_msgs/VelodyneScan")
 
 #: Definitions (``.msg``) of the packet messages read or recognised in recordings, for the
 #: recordings that do not carry them: raw Velodyne packets (velodyne_msgs, decoded by
-#: :class:`~data_tools.velodyne_pcap.VelodyneScanSequence`) and raw Ouster packets (ouster-ros 1
+#: :class:`~data_tools.formats.velodyne_pcap.VelodyneScanSequence`) and raw Ouster packets (ouster-ros 1
 #: and 2, recognised with a hint). Time is ``builtin_interfaces/Time`` in both ROS versions (ROS 1
 #: ``time`` deserialises to it).
 PACKET_DEFINITIONS = {
@@ -642,7 +642,7 @@ def _raw_stamp(raw: bytes | memoryview, ros1: bool) -> float | None:
 #: Message types that hold a lidar's data in another form than PointCloud2 -> what to do with them.
 OTHER_LIDAR_TYPES = {
     "velodyne_msgs/msg/VelodyneScan": "raw Velodyne packets: data_tools.open_dataset and the command line "
-    "decode them (data_tools.velodyne_pcap.VelodyneScanSequence)",
+    "decode them (data_tools.formats.velodyne_pcap.VelodyneScanSequence)",
     "ouster_sensor_msgs/msg/PacketMsg": "raw Ouster packets: convert them with ouster-ros or read a .pcap with "
     "its metadata json",
     "ouster_ros/msg/PacketMsg": "raw Ouster packets: convert them with ouster-ros or read a .pcap with its "

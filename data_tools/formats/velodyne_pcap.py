@@ -538,7 +538,7 @@ class VelodyneScanSequence(VelodynePcapSequence):
 
     Parameters
     ----------
-    path : the recording (see :class:`data_tools.rosbag.RosbagSequence`)
+    path : the recording (see :class:`data_tools.formats.rosbag.RosbagSequence`)
     topic : the VelodyneScan topic (needed when there are several)
     """
 
@@ -549,7 +549,7 @@ class VelodyneScanSequence(VelodynePcapSequence):
         super().__init__(path, model=model)
 
     def _packets(self) -> Iterator[tuple[float, bytes]]:
-        from data_tools.rosbag import open_reader, reader_paths
+        from data_tools.formats.rosbag import open_reader, reader_paths
 
         self.source = self.topic
         try:

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from prc_slam import evaluation as E
 from prc_slam.config import Config
+from prc_slam.evaluation import metrics as E
 from prc_slam.odometry.compare import CompareResult
 
 FIELDS = ("ate_rmse_m", "rpe_trans_m", "kitti_trans_pct", "ms_per_frame", "points_in", "points_to_icp", "frames")
@@ -324,7 +324,7 @@ def classification_section(metrics: dict[str, Any], title: str) -> str:
     for name, o in metrics.get("objects", {}).items():
         lines.append(f"- {name} objects found: {o['found']} of {o['present']}")
     if "vehicle_by_range" in metrics:  # per-instance scores by range band (online detectors)
-        from prc_slam.scoring import range_band_rows
+        from prc_slam.evaluation.scoring import range_band_rows
 
         header, rows = range_band_rows(metrics["vehicle_by_range"])
         lines += ["", "Vehicles by range (found: at least half of an instance's points labelled vehicle):", ""]

@@ -137,7 +137,7 @@ def _serve(
         _watch_parent(parent)
     if parent_end is not None:
         parent_end.close()
-    from prc_slam.signals import reset_in_child
+    from prc_slam.util.signals import reset_in_child
 
     reset_in_child()  # SIGTERM ends the child; the parent's signal watchdog is not told
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's to handle

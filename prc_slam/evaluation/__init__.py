@@ -1,0 +1,1 @@
+"""Evaluation: classification and trajectory metrics, scorers, the peers we measure against."""

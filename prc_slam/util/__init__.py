@@ -1,0 +1,1 @@
+"""Shared utilities: threads, forked frames, union-find, voxel grids, signals."""
