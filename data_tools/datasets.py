@@ -1,7 +1,8 @@
 """Open any supported input with automatic format detection: the registry of readers.
 
 Each format is a :class:`~data_tools.sequence.Reader` (its name, the options it takes, ``detect`` and
-``open``), declared by its reader module (``READER``) or, for the readers below, here.
+``open``), declared by its format module (``READER``); here the simulator's (whose module loads the ray caster)
+and the recordings' (a bag holds PointCloud2 sweeps or raw Velodyne packets: two formats).
 :func:`detect_format` asks the readers of :func:`readers` in turn; the first that recognises the input
 opens it.
 """
@@ -22,50 +23,12 @@ FORMATS = ("kitti", "ouster", "sim", "ouster-pcap", "velodyne-pcap", "pcd", "las
 FORMAT_ALIASES = {"pcap": "ouster-pcap", "ply": "pcd", "bin": "pcd", "laz": "las"}
 FORMAT_ALIASES.update({k: "rosbag" for k in ("bag", "mcap", "ros1", "ros2", "db3")})
 _OPTION_FLAGS = {"organize_method": "--organize", "destaggered": "--staggered"}
-_PCAP_SUFFIXES = (".pcap", ".pcapng")
 
 
 def _open_sim(path: Path, options: dict[str, Any]) -> Dataset:
     from data_tools.sim.dataset import SimSequence
 
     return SimSequence(path)
-
-
-def _is_velodyne_pcap(path: Path) -> bool:
-    if path.is_dir() or path.suffix.lower() not in _PCAP_SUFFIXES:
-        return False
-    from data_tools.formats.velodyne_pcap import check_capture, looks_like_velodyne
-
-    check_capture(path)  # an empty or foreign file says so (not "no Ouster metadata")
-    return looks_like_velodyne(path)
-
-
-def _open_velodyne_pcap(path: Path, options: dict[str, Any]) -> Dataset:
-    from data_tools.formats.velodyne_pcap import VelodynePcapSequence
-
-    model = options.get("model")
-    return VelodynePcapSequence(path, model=None if model is None else str(model))
-
-
-def _is_ouster_pcap(path: Path) -> bool:
-    """A capture that is not a Velodyne one (asked first): an Ouster one, whose metadata json must be found."""
-    if path.is_dir() or path.suffix.lower() not in _PCAP_SUFFIXES:
-        return False
-    from data_tools.formats.ouster_pcap import find_metadata
-    from data_tools.formats.velodyne_pcap import check_not_hesai
-
-    check_not_hesai(path)
-    find_metadata(path)  # a pcap without its json: one-line error naming the file
-    return True
-
-
-def _open_ouster_pcap(path: Path, options: dict[str, Any]) -> Dataset:
-    from data_tools.formats.ouster_pcap import OusterPcapSequence
-
-    meta = options.get("meta")
-    return OusterPcapSequence(
-        path, meta=None if meta is None else str(meta), destaggered=bool(options.get("destaggered", True))
-    )
 
 
 def _is_recording(path: Path) -> bool:
@@ -85,17 +48,25 @@ def _open_recording(path: Path, options: dict[str, Any]) -> Dataset:
 
 
 SIM = Reader("sim", (), lambda path: path.is_dir() and (path / "sim.json").is_file(), _open_sim)
-VELODYNE_PCAP = Reader("velodyne-pcap", ("model",), _is_velodyne_pcap, _open_velodyne_pcap)
-OUSTER_PCAP = Reader("ouster-pcap", ("meta", "destaggered"), _is_ouster_pcap, _open_ouster_pcap)
+
 ROSBAG = Reader("rosbag", ("topic", *ORGANISER_OPTIONS), _is_recording, _open_recording)
 
 
 def readers() -> tuple[Reader, ...]:
     """Every reader, in the order :func:`detect_format` asks them (a simulated sequence before a
     recording folder before a KITTI directory; a Velodyne capture before an Ouster one)."""
-    from data_tools.formats import kitti, ouster, pcd
+    from data_tools.formats import kitti, ouster, ouster_pcap, pcd, velodyne_pcap
 
-    return (SIM, ROSBAG, kitti.READER, ouster.READER, VELODYNE_PCAP, OUSTER_PCAP, pcd.READER, pcd.LAS_READER)
+    return (
+        SIM,
+        ROSBAG,
+        kitti.READER,
+        ouster.READER,
+        velodyne_pcap.READER,
+        ouster_pcap.READER,
+        pcd.READER,
+        pcd.LAS_READER,
+    )
 
 
 def detect_format(path: str | Path) -> str:

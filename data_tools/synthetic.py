@@ -68,34 +68,3 @@ def profiler_block(
     ranges[outliers] = rng.uniform(0.5, max_range, outliers.sum())
     gt[outliers] = L.NOISE
     return Scan(ranges=ranges.astype(np.float32), sensor=sensor, gt_labels=gt, name=f"{row0:06d}", source="synthetic")
-
-
-class ProfilerStreet:
-    """A sequence of :func:`profiler_block` frames forming one continuous drive.
-
-    Frame ``i`` holds scan lines ``i*lines .. (i+1)*lines - 1``; the geometry continues across
-    frames (bushes are placed by the along-street position), noise is drawn per frame from
-    ``seed + i``.
-    """
-
-    format = "synthetic-profiler"
-
-    def __init__(self, frames: int = 20, lines: int = 99, M: int = 2154, seed: int = 0, **options: float) -> None:
-        self.frames, self.lines, self.M, self.seed, self.options = frames, lines, M, seed, options
-        self.name = f"profiler-street-seed{seed}"
-        self.poses = None
-        self.times = None
-
-    def __len__(self) -> int:
-        return self.frames
-
-    def __iter__(self):
-        for i in range(len(self)):
-            yield self[i]
-
-    def __getitem__(self, i: int) -> Scan:
-        if not 0 <= i < self.frames:
-            raise IndexError(i)
-        scan = profiler_block(self.lines, self.M, seed=self.seed + i, row0=i * self.lines, **self.options)
-        scan.name = f"{i:06d}"
-        return scan

@@ -256,17 +256,6 @@ class ProfilerSensor(SensorModel):
             mount=np.eye(3) if mount is None else np.asarray(mount, dtype=np.float64),
         )
 
-    def with_rows(self, rows: int) -> ProfilerSensor:
-        """The same profiler for a block of another number of scan lines."""
-        return ProfilerSensor.create(
-            rows,
-            self.cols,
-            angle0=self.angle0,
-            line_rate=self.line_rate,
-            line_spacing=self.line_spacing,
-            mount=self.mount,
-        )
-
     def directions(self) -> np.ndarray:
         theta = self.angle0 + 2.0 * np.pi * np.arange(self.cols) / self.cols
         local = np.stack([np.zeros_like(theta), np.cos(theta), np.sin(theta)], axis=-1)

@@ -19,12 +19,14 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from data_tools.errors import DataError
 from data_tools.formats.ouster import ouster_scan
-from data_tools.sequence import SequenceBase
+from data_tools.formats.velodyne_pcap import PCAP_SUFFIXES, check_not_hesai
+from data_tools.sequence import Dataset, Reader, SequenceBase
 from prc_slam.scan import Scan
 
 log = logging.getLogger("prc_slam.readers")
@@ -118,8 +120,6 @@ class OusterPcapSequence(SequenceBase):
         self.name = path.stem
         self.destaggered = destaggered
         self.field = field
-        from data_tools.formats.velodyne_pcap import check_not_hesai
-
         check_not_hesai(path)  # (not "no Ouster metadata" or "no lidar packets matching")
         self.meta_path = find_metadata(path, meta)
         self.info = load_sensor_info(self.meta_path, path)
@@ -321,3 +321,22 @@ class OusterPcapSequence(SequenceBase):
                 "sensor": f"{self.info.prod_line} sn {self.info.sn}",
             },
         )
+
+
+def _is_ouster_pcap(path: Path) -> bool:
+    """A capture that is not a Velodyne one (asked first): an Ouster one, whose metadata json must be found."""
+    if path.is_dir() or path.suffix.lower() not in PCAP_SUFFIXES:
+        return False
+    check_not_hesai(path)
+    find_metadata(path)  # a pcap without its json: one-line error naming the file
+    return True
+
+
+def _open_ouster_pcap(path: Path, options: dict[str, Any]) -> Dataset:
+    meta = options.get("meta")
+    return OusterPcapSequence(
+        path, meta=None if meta is None else str(meta), destaggered=bool(options.get("destaggered", True))
+    )
+
+
+READER = Reader("ouster-pcap", ("meta", "destaggered"), _is_ouster_pcap, _open_ouster_pcap)

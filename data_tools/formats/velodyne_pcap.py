@@ -27,11 +27,12 @@ import struct
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from data_tools.errors import DataError
-from data_tools.sequence import SequenceBase
+from data_tools.sequence import Dataset, Reader, SequenceBase
 from prc_slam.scan import Scan
 
 log = logging.getLogger("prc_slam.readers")
@@ -301,15 +302,6 @@ def check_not_hesai(path: str | Path, packets: int = 16) -> None:
                 "not read here; convert the capture to PointCloud2 (bag/MCAP) or PCD sweeps with the Hesai driver "
                 "(HesaiLidar_ROS_2.0, nebula) and read those"
             )
-
-
-def detect_model(path: str | Path) -> str | None:
-    """The sensor model from the factory byte of the first data packet (None for the HDL-64E,
-    whose packets carry no factory byte; the decoder detects it and its calibration itself)."""
-    for p in udp_payloads(path, limit=1):
-        entry = FACTORY_MODELS.get(p[-1])
-        return None if entry is None else entry[0]
-    return None
 
 
 class VelodynePcapSequence(SequenceBase):
@@ -601,3 +593,22 @@ def primary_returns(ring: np.ndarray, column: np.ndarray, return_type: np.ndarra
     partner[order] = head[group]
     primary = partner == np.arange(n)
     return primary, partner
+
+
+#: file endings of a packet capture
+PCAP_SUFFIXES = (".pcap", ".pcapng")
+
+
+def _is_velodyne_pcap(path: Path) -> bool:
+    if path.is_dir() or path.suffix.lower() not in PCAP_SUFFIXES:
+        return False
+    check_capture(path)  # an empty or foreign file says so (not "no Ouster metadata")
+    return looks_like_velodyne(path)
+
+
+def _open_velodyne_pcap(path: Path, options: dict[str, Any]) -> Dataset:
+    model = options.get("model")
+    return VelodynePcapSequence(path, model=None if model is None else str(model))
+
+
+READER = Reader("velodyne-pcap", ("model",), _is_velodyne_pcap, _open_velodyne_pcap)
