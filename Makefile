@@ -40,7 +40,7 @@ test: setup
 bench: setup
 	$(VENV)/bin/prc-slam bench --json out/bench.json
 
-# the documentation site (mkdocs.yml), into out/site; `make test` builds it too (tests/test_docs.py)
+# the documentation site (mkdocs.yml), into out/site; `make test` builds it too (tests/docs/test_docs.py)
 docs: setup
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir out/site
 

@@ -10,7 +10,7 @@ numpy's ``arccos``, and of ``arccos_into`` (degrees) against the exact degrees. 
 cosines: 1.13 ulp, 1 ulp and 2.70 ulp. The refit's last digits follow the least-squares (LAPACK) kernels the CPU
 selects (here up to 2.4e-3 relative in the highest powers, while the two polynomials agree to
 3e-16 relative on ``[0, 1/4]``), so it is not compared digit by digit with ``ARCCOS_G``: the
-error above is what matters, and it is what ``tests/test_online_equivalence.py`` bounds.
+error above is what matters, and it is what ``tests/online/test_online_equivalence.py`` bounds.
 """
 
 from __future__ import annotations

@@ -11,14 +11,14 @@ KITTI00 = SHARED_DATA / "kitti00"
 OUSTER_DECODED = SHARED_DATA / "ouster" / "decoded"
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def kitti_dir() -> Path:
     if not (KITTI00 / "velodyne").is_dir():
         pytest.skip(f"real KITTI data not found at {KITTI00} (expected ../shared/data beside the repo)")
     return KITTI00
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def ouster_files() -> list[Path]:
     files = sorted(OUSTER_DECODED.glob("*.npz"))
     if not files:

@@ -1,0 +1,1 @@
+"""Builders of small inputs (sweeps, captures, recordings, clouds) shared by the test modules."""

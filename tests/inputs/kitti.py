@@ -1,0 +1,44 @@
+"""Small KITTI-layout sequences written to a folder (synthetic sweeps, labels, calibration, poses, times)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+CALIB = "Tr: " + " ".join(["1", "0", "0", "0", "0", "1", "0", "0", "0", "0", "1", "0"]) + "\n"
+
+
+def synthetic_sweep(rings: int = 8, cols: int = 360, seed: int = 0, keep: float = 0.7, with_rings: bool = False):
+    """Points ring by ring, azimuth increasing from 0 through +-pi in firing steps of
+    ``2 pi / cols`` (a share ``keep`` of the firings return), like a KITTI bin; with
+    ``with_rings`` also the ring and the firing (column) of every point."""
+    rng = np.random.default_rng(seed)
+    pts, ring, col = [], [], []
+    for k in range(rings):
+        fired = np.flatnonzero(rng.random(cols) < keep)
+        az = (fired + 0.5) * 2 * np.pi / cols
+        el = np.radians(-20 + 2.5 * k)
+        r = rng.uniform(5, 30, len(az))
+        x, y, z = r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el) * np.ones(len(az))
+        pts.append(np.stack([x, y, z, rng.random(len(az))], axis=1))
+        ring.append(np.full(len(az), k))
+        col.append(fired)
+    pts = np.concatenate(pts).astype(np.float32)
+    return (pts, np.concatenate(ring), np.concatenate(col)) if with_rings else pts
+
+
+def make_kitti(root: Path, frames: int = 2, labels: bool = True) -> Path:
+    (root / "velodyne").mkdir(parents=True)
+    for i in range(frames):
+        pts = synthetic_sweep(seed=i)
+        pts.tofile(root / "velodyne" / f"{i:06d}.bin")
+        if labels:
+            (root / "labels").mkdir(exist_ok=True)
+            sem = np.where(pts[:, 2] < -3, 40, 50).astype(np.uint32) | (np.uint32(7) << 16)
+            sem.tofile(root / "labels" / f"{i:06d}.label")
+    (root / "calib.txt").write_text(CALIB)
+    (root / "times.txt").write_text("".join(f"{0.1 * i:e}\n" for i in range(frames)))
+    pose = "1 0 0 {x} 0 1 0 0 0 0 1 0\n"
+    (root / "poses.txt").write_text("".join(pose.format(x=i) for i in range(frames)))
+    return root

@@ -1,0 +1,109 @@
+"""LAS/LAZ tiles: the classified clouds keep the input's scale and offsets, withheld points are written
+but not scored, ASPRS road surface and ignored ground count as ground.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+laspy = pytest.importorskip("laspy")
+
+
+def block_scene(n: int = 6000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A 40 m x 40 m ground (ASPRS 2) with a 20 m wall 8 m high (ASPRS 6): points, classes."""
+    rng = np.random.default_rng(seed)
+    ground = np.column_stack([rng.uniform(0, 40, n), rng.uniform(0, 40, n), rng.normal(0, 0.02, n)])
+    m = n // 3
+    wall = np.column_stack([rng.uniform(10, 30, m), np.full(m, 30.0) + rng.normal(0, 0.02, m), rng.uniform(0, 8, m)])
+    return np.concatenate([ground, wall]), np.concatenate([np.full(n, 2), np.full(m, 6)]).astype(np.uint8)
+
+
+def write_las(
+    path: Path,
+    xyz: np.ndarray,
+    classes: np.ndarray | None = None,
+    *,
+    scale: float = 0.001,
+    offset: np.ndarray | None = None,
+    point_format: int = 6,
+    withheld: np.ndarray | None = None,
+) -> Path:
+    version = "1.4" if point_format >= 6 else "1.2"
+    header = laspy.LasHeader(point_format=point_format, version=version)
+    header.scales = np.array([scale] * 3)
+    header.offsets = np.floor(xyz.min(axis=0)) if offset is None else offset
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = xyz.T
+    if classes is not None:
+        las.classification = classes
+    if withheld is not None:
+        las.withheld = withheld
+    las.write(path)
+    return path
+
+
+@pytest.mark.parametrize("scale", [0.0001, 0.01])
+def test_the_classified_clouds_keep_the_input_scale_and_offsets(tmp_path, scale):
+    """Before: every output was written at 1 mm from its own offset, whatever the input's grid; a
+    0.1 mm UTM tile came out moved by up to 0.5 mm, and a 1 cm one on another grid than its own."""
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    xyz, classes = block_scene()
+    offset = np.array([500_000.0, 5_400_000.0, 100.0])
+    xyz = xyz + np.array([500_123.4567, 5_400_321.1234, 120.0])
+    src = laspy.read(write_las(tmp_path / "tile.las", xyz, classes, scale=scale, offset=offset))
+    metrics = mapclass_job(tmp_path / "tile.las", Config(), tmp_path / "out")
+    out = laspy.read(metrics["files"]["all"])
+    assert np.allclose(out.header.scales, scale) and np.allclose(out.header.offsets, offset)
+    assert np.array_equal(np.asarray(out.X), np.asarray(src.X))  # the stored integers, point for point
+    assert np.array_equal(np.asarray(out.Y), np.asarray(src.Y)) and np.array_equal(np.asarray(out.Z), np.asarray(src.Z))
+    parts = [laspy.read(p) for k, p in metrics["files"].items() if k != "all"]
+    assert sum(len(p) for p in parts) == len(src)
+    for part in parts:
+        assert np.allclose(part.header.scales, scale)
+
+
+def test_withheld_points_are_written_but_not_scored(tmp_path):
+    """Before: the withheld flag (LAS 1.4: treat as deleted) was ignored and withheld points were
+    scored like any other; now they are classified and written (one label per point) and the
+    scores count the others (``scored_points``)."""
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    xyz, classes = block_scene()
+    withheld = np.arange(len(xyz)) % 5 == 0
+    wrong = classes.copy()
+    wrong[withheld] = 6  # withheld ground points carry a wrong class: they must not count
+    write_las(tmp_path / "tile.las", xyz, wrong, withheld=withheld)
+    write_las(tmp_path / "clean.las", xyz[~withheld], classes[~withheld])
+    metrics = mapclass_job(tmp_path / "tile.las", Config(), tmp_path / "out")
+    assert metrics["points"] == len(xyz) and len(laspy.read(metrics["files"]["all"])) == len(xyz)
+    assert metrics["scored_points"] == int((~withheld).sum())
+    support = {k: v["support"] for k, v in metrics["per_class"].items()}
+    assert support["ground"] == int(((classes == 2) & ~withheld).sum())
+    assert support["building"] == int(((classes == 6) & ~withheld).sum())
+    plain = mapclass_job(tmp_path / "tile.las", Config(), tmp_path / "plain", reference=True)
+    assert plain["scored_points"] == metrics["scored_points"]
+
+
+def test_asprs_road_surface_and_ignored_ground_are_scored_as_ground(tmp_path):
+    """Before: a tile whose ground carried ASPRS 11 (road surface) or 20 (ignored ground) had no
+    ground in its reference (ground recall undefined, every ground point a false positive)."""
+    from prc_slam.config import Config
+    from prc_slam.jobs.mapclass import mapclass_job
+
+    xyz, classes = block_scene()
+    coded = classes.copy()
+    ground = np.flatnonzero(classes == 2)
+    coded[ground[::2]] = 11
+    coded[ground[1::2]] = 20
+    write_las(tmp_path / "asprs.las", xyz, coded)
+    write_las(tmp_path / "plain.las", xyz, classes)
+    a = mapclass_job(tmp_path / "asprs.las", Config(), tmp_path / "a")
+    b = mapclass_job(tmp_path / "plain.las", Config(), tmp_path / "b")
+    assert a["per_class"] == b["per_class"]
+    assert a["per_class"]["ground"]["support"] == len(ground)

@@ -1,0 +1,52 @@
+"""Pose files: poses whose z is not up are warned."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+
+def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
+    """A KITTI layout with sweeps ``NNNNNN.bin`` for ``numbers`` and ``n_lines`` poses (pose k at
+    x = k metres) and times (k x 0.1 s), an identity ``Tr``."""
+    from tests.inputs.grids import spinning_grid
+
+    (root / "velodyne").mkdir(parents=True)
+    for k in numbers:
+        g = spinning_grid(seed=k).reshape(-1, 3)
+        g = g[np.isfinite(g).all(axis=1)]
+        np.column_stack([g, np.zeros(len(g), np.float32)]).astype(np.float32).tofile(root / "velodyne" / f"{k:06d}.bin")
+    poses = np.tile(np.eye(4)[:3].ravel(), (n_lines, 1))
+    poses[:, 3] = np.arange(n_lines)
+    np.savetxt(root / "poses.txt", poses)
+    np.savetxt(root / "times.txt", np.arange(n_lines) * 0.1)
+    (root / "calib.txt").write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
+    return root
+
+
+def test_poses_whose_z_is_not_up_are_warned(tmp_path, caplog):
+    """Before: ``mapclass kitti00 --poses kitti00/poses.txt`` (camera 0's frame: the car drives
+    along z) stacked the sweeps 0.86 m above each other without a word: 286,816 of 496,488 points
+    'building', ground F1 0.60 instead of 0.90."""
+    from data_tools.formats.kitti import KittiSequence
+    from prc_slam.jobs.mapclass import map_from_dataset, warn_unless_z_up
+
+    def poses(axis: int, step: float, n: int = 6) -> np.ndarray:
+        p = np.tile(np.eye(4), (n, 1, 1))
+        p[:, axis, 3] = np.arange(n) * step
+        return p
+
+    with caplog.at_level(logging.WARNING, logger="prc_slam.mapclass"):
+        assert warn_unless_z_up(poses(2, 0.86), "camera.txt")  # KITTI camera 0: forward is z
+        assert not warn_unless_z_up(poses(0, 0.86), "lidar.txt")  # forward is x
+        assert not warn_unless_z_up(poses(2, 0.1), "short.txt")  # 0.5 m of path: a lift, not a drive
+        assert not warn_unless_z_up(poses(0, 0.0), "still.txt")
+    assert [r.getMessage().split(":")[0] for r in caplog.records] == ["camera.txt"]
+    caplog.clear()
+    root = _kitti_folder(tmp_path / "seq", [0, 1, 2, 3], 4)
+    np.savetxt(tmp_path / "cam.txt", poses(2, 0.86, 4)[:, :3, :].reshape(4, 12))
+    with caplog.at_level(logging.WARNING, logger="prc_slam.mapclass"):
+        map_from_dataset(KittiSequence(root), 4, 1, tmp_path / "cam.txt")
+    assert "cam.txt: the poses climb 2.6 m and move 0.0 m horizontally" in caplog.text
