@@ -55,8 +55,9 @@ def one_error_line(res) -> str:
     ],
 )
 def test_an_output_path_that_cannot_be_written_is_refused_before_any_work(small_kitti, tmp_path, args, needle):
-    """It was ``error: [Errno 17] File exists: ...`` (no option named), after the whole run for
-    ``--json`` and ``compare --out``: the results were lost."""
+    """An output path that cannot be written (an existing file where a folder goes, a folder where a file goes)
+    is refused with a one-line error naming the option, before the first frame, so that ``--json`` and ``compare
+    --out`` never lose a finished run's results."""
     from typer.testing import CliRunner
 
     from prc_slam.cli import app

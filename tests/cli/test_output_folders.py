@@ -44,9 +44,8 @@ def write_las(
 
 
 def test_a_second_run_into_the_same_folder_leaves_no_class_files_of_the_first(tmp_path):
-    """Before: classifying a building tile and then a bare field into the same ``--out`` left the
-    first run's ``building.las`` (and its ``.las`` files beside a later ``--laz`` run's): the folder
-    said the field had buildings. Files that are not ours stay."""
+    """Classifying a building tile and then a bare field into the same ``--out`` leaves no ``building.las`` of
+    the first run (nor its ``.las`` files beside a later ``--laz`` run's); files the command did not write stay."""
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 

@@ -17,8 +17,9 @@ import pytest
     ids=["unknown key", "wrong type", "nested wrong type", "unknown section", "broken yaml"],
 )
 def test_config_errors_name_the_file_and_the_key_as_written(tmp_path, text, expected):
-    """Before: ``--prc.bogus-key: ...`` (an option that does not exist, the key spelt with hyphens,
-    no file) and, for broken YAML, the parser's first line without its position."""
+    """Unknown keys and sections and values of the wrong type name the configuration file and the key as written
+    in it (underscores, not an option's hyphens); broken YAML gives the parser's message with its line and
+    column. Both in ``Config.from_yaml`` and on the command line."""
     from typer.testing import CliRunner
 
     from prc_slam.cli import app

@@ -47,8 +47,8 @@ def write_las(
 
 @pytest.mark.parametrize("scale", [0.0001, 0.01])
 def test_the_classified_clouds_keep_the_input_scale_and_offsets(tmp_path, scale):
-    """Before: every output was written at 1 mm from its own offset, whatever the input's grid; a
-    0.1 mm UTM tile came out moved by up to 0.5 mm, and a 1 cm one on another grid than its own."""
+    """The classified clouds are written on the input's own grid (scale and offsets): a 0.1 mm UTM tile and a 1
+    cm tile on another grid come out with every point where it was."""
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
@@ -68,9 +68,8 @@ def test_the_classified_clouds_keep_the_input_scale_and_offsets(tmp_path, scale)
 
 
 def test_withheld_points_are_written_but_not_scored(tmp_path):
-    """Before: the withheld flag (LAS 1.4: treat as deleted) was ignored and withheld points were
-    scored like any other; now they are classified and written (one label per point) and the
-    scores count the others (``scored_points``)."""
+    """Points the LAS 1.4 withheld flag marks (to be treated as deleted) are classified and written (one label
+    per point) and left out of the scores (``scored_points`` counts the others)."""
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
@@ -91,8 +90,8 @@ def test_withheld_points_are_written_but_not_scored(tmp_path):
 
 
 def test_asprs_road_surface_and_ignored_ground_are_scored_as_ground(tmp_path):
-    """Before: a tile whose ground carried ASPRS 11 (road surface) or 20 (ignored ground) had no
-    ground in its reference (ground recall undefined, every ground point a false positive)."""
+    """ASPRS 11 (road surface) and 20 (ignored ground) in a tile's own classes are reference ground, so the
+    tile's ground recall is defined and its ground points are not false positives."""
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 

@@ -30,8 +30,8 @@ def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
 
 
 def test_mapclass_on_a_sequence_labelled_in_part_scores_the_labelled_frames(tmp_path):
-    """Before: ``mapclass kitti00 --max-frames 8 --every 2`` (SemanticKITTI labels for frames 0-2
-    only) failed with '496488 labels for 249146 reference codes'."""
+    """``mapclass kitti00 --max-frames 8 --every 2`` with SemanticKITTI labels for frames 0-2 only scores the
+    points of the labelled frames (no mismatch between label and point counts)."""
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import map_from_dataset, mapclass_job
 
@@ -122,7 +122,7 @@ def test_mapclass_takes_tum_poses_like_kitti_poses_and_warns_of_extra_poses(tmp_
 
 
 def test_a_folder_of_las_tiles_given_to_mapclass_says_to_give_one_cloud(tmp_path):
-    """Before: 'unknown input format (expected a simulated sequence with sim.json, ...)'."""
+    """A folder of LAS tiles given to ``mapclass`` is a one-line error that asks for one cloud file."""
     from data_tools.errors import DataError
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
@@ -136,8 +136,8 @@ def test_a_folder_of_las_tiles_given_to_mapclass_says_to_give_one_cloud(tmp_path
 
 
 def test_an_unknown_file_given_to_mapclass_lists_the_cloud_formats(tmp_path):
-    """Before: the message listed the sequence formats only (sim.json, velodyne/, pcap, bags), not
-    the PLY / NPY / NPZ clouds mapclass reads."""
+    """An unknown file given to ``mapclass`` is an error that lists the cloud formats it reads (LAS/LAZ, PLY,
+    NPY, NPZ) besides the sequence formats."""
     from data_tools.errors import DataError
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
@@ -150,9 +150,9 @@ def test_an_unknown_file_given_to_mapclass_lists_the_cloud_formats(tmp_path):
 
 
 def test_reference_classes_without_a_map_class_are_warned_with_their_counts(tmp_path, caplog):
-    """Before: ASPRS water (9), bridge deck (17) or a producer's own class 40 in a tile's
-    classification were scored without a word (each such point a false positive of the class it
-    is given); standard classes with a counterpart (2, 3-6, 11, 20) are not warned of."""
+    """Reference classes without a map class (ASPRS water 9, bridge deck 17, a producer's own class 40) are
+    warned with their point counts, since each such point scores as a false positive; standard classes with a
+    counterpart (2, 3-6, 11, 20) are not warned of."""
 
     from prc_slam.jobs.mapclass import warn_unscored_reference
 
@@ -188,7 +188,8 @@ def test_a_tiles_own_classes_and_instances_are_read_chunk_by_chunk(tmp_path, mon
 
 
 def test_sequence_options_given_with_one_cloud_file_are_an_error(tmp_path):
-    """Before: ``mapclass map.las --poses p.txt --every 3`` classified the cloud and ignored both."""
+    """``mapclass map.las --poses p.txt --every 3``: options of a sequence given with one cloud file are an
+    error, not ignored."""
     from typer.testing import CliRunner
 
     from prc_slam.cli import app

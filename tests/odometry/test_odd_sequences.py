@@ -62,8 +62,8 @@ def test_failed_odometry_variant_is_warned(caplog):
 
 
 def test_odometry_on_pcd_sweeps_with_relative_times_uses_every_frame(tmp_path):
-    """End to end: before, the PRC variant stopped at frame 1 ('frame time ... does not follow')
-    and the command exited 0 with one pose."""
+    """End to end: PCD sweeps with per-sweep relative point times and no ``times.txt`` are registered frame by
+    frame by every variant (a pose per frame), not stopped at frame 1."""
     from typer.testing import CliRunner
 
     from prc_slam.cli import app
@@ -100,9 +100,8 @@ def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
 
 
 def test_a_run_too_short_for_the_health_checks_says_so(tmp_path):
-    """Before: ``compare --stride 5`` on KITTI 00 (four keyframes) reported every variant 'ok',
-    prc+classaware too, 3.8 m short of the first 4.3 m step: no check runs before frame
-    ``warm_up``. Now report.md, metrics.json and the command line say that nothing was checked."""
+    """``compare --stride 5`` on KITTI 00 (four keyframes, fewer than ``warm_up``): report.md, metrics.json and
+    the command line say that nothing was checked, rather than calling every variant 'ok'."""
     import json
 
     from typer.testing import CliRunner
@@ -148,8 +147,8 @@ def _frames_txt(out: Path) -> np.ndarray:
 
 
 def test_ouster_sweeps_are_written_at_their_own_times(ouster_files, tmp_path):
-    """Before: the three OS-1 sweeps (0.1 s apart, at 991.6 s on the sensor's clock) were written
-    to frames.txt and the TUM trajectories at 0, 1 and 2 s (the frame index)."""
+    """The OS-1 sweeps (0.1 s apart, at 991.6 s on the sensor's clock) are written to ``frames.txt`` and the TUM
+    trajectories at their own times, not at their frame indices."""
     folder = tmp_path / "os1"
     folder.mkdir()
     for f in ouster_files:
@@ -166,8 +165,8 @@ def test_ouster_sweeps_are_written_at_their_own_times(ouster_files, tmp_path):
 
 
 def test_the_reference_time_is_the_frame_time_else_the_middle_of_all_points():
-    """Before: a frame without ``frame_time`` had none here, and each variant took the middle of
-    the points it registered (a PRC variant's own subset)."""
+    """A frame's reference time is its ``frame_time``, else the middle of all its points' times, one instant for
+    every variant (not the middle of the points a PRC variant registered)."""
     from prc_slam.odometry.compare import _frame_time
     from prc_slam.scan import Scan, SpinningSensor
 
@@ -182,8 +181,8 @@ def test_the_reference_time_is_the_frame_time_else_the_middle_of_all_points():
 
 
 def test_a_single_frame_has_no_error_figures(kitti_dir, tmp_path):
-    """Before: one KITTI sweep gave ``ate_rmse_m`` 0.0 and ``rpe_trans_m`` 0.0 (a perfect score
-    for the one pose, placed at the ground truth by construction)."""
+    """One KITTI sweep has no ``ate_rmse_m`` or ``rpe_trans_m`` (null, '-' in the tables): its one pose is
+    placed at the ground truth by construction, so 0.0 would be a false perfect score."""
     out = tmp_path / "out"
     metrics = _compare(_kitti_copy(kitti_dir, tmp_path / "seq", [0]), out)
     raw = metrics["variants"]["raw"]
@@ -205,7 +204,8 @@ def test_se3_exp_inverts_se3_log():
 
 
 def test_the_prediction_follows_the_time_since_the_previous_frame():
-    """Before: the prediction was the last frame-to-frame motion whatever the time between frames."""
+    """The constant-velocity prediction is stretched to the time since the previous frame when that interval
+    differs from the last one by more than 1.5x."""
     from prc_slam.odometry.kiss import KissOdometry
 
     odo = KissOdometry()
@@ -219,9 +219,8 @@ def test_the_prediction_follows_the_time_since_the_previous_frame():
 
 
 def test_frames_missing_with_their_times_are_bridged(kitti_dir, tmp_path):
-    """Before: KITTI 00 sweeps 0-4 and 12-15 with their times (0.8 s between 4 and 12, 6.9 m): the
-    PRC variant predicted one frame's motion (0.9 m) and locked 5 m short of the truth (ATE 2.9 m,
-    every later frame flagged); now it stays within the raw variant's error (ATE 0.45 m)."""
+    """KITTI 00 sweeps 0-4 and 12-15 with their times (0.8 s and 6.9 m between 4 and 12): the PRC variant
+    predicts across the gap and stays within the raw variant's error (ATE 0.45 m) instead of locking 5 m short."""
     root = _kitti_copy(kitti_dir, tmp_path / "seq", [0, 1, 2, 3, 4, 12, 13, 14, 15])
     prc = _compare(root, tmp_path / "out", "prc")["variants"]["prc"]
     assert not prc["failed"] and prc["frames"] == 9
@@ -230,8 +229,8 @@ def test_frames_missing_with_their_times_are_bridged(kitti_dir, tmp_path):
 
 
 def test_unnumbered_sweeps_beside_a_longer_pose_file_are_warned(kitti_dir, tmp_path, caplog):
-    """Before: sweeps named ``a.bin``, ``b.bin`` beside KITTI 00's 16 poses took the first two
-    without a word (whichever sweeps they were)."""
+    """Sweeps named ``a.bin``, ``b.bin`` beside KITTI 00's 16 poses take the first poses with a warning
+    (whichever sweeps they are)."""
     from data_tools.formats.kitti import KittiSequence
 
     root = _kitti_copy(kitti_dir, tmp_path / "seq", [])
@@ -250,9 +249,8 @@ def test_unnumbered_sweeps_beside_a_longer_pose_file_are_warned(kitti_dir, tmp_p
 
 @pytest.mark.parametrize(("scale", "offset", "warned"), [(1e3, 0.0, True), (1e9, 1.3e18, True), (1.0, 1.3e9, False)])
 def test_frame_times_in_milliseconds_or_nanoseconds_are_warned(kitti_dir, tmp_path, caplog, scale, offset, warned):
-    """Before: a ``times.txt`` in milliseconds or nanoseconds (ROS stamps) was read as seconds
-    without a word: the guard's speed bound let any jump pass (70 m/s x 1e8 s) and the TUM files
-    and ``frames.txt`` gave nanoseconds as seconds. Epoch seconds are seconds (not warned)."""
+    """A ``times.txt`` in milliseconds or nanoseconds (ROS stamps) is warned, as the guard's speed bound, the
+    TUM files and ``frames.txt`` read it as seconds; epoch seconds are seconds (not warned)."""
     from data_tools.formats.kitti import KittiSequence
 
     root = _kitti_copy(kitti_dir, tmp_path / "seq", [0, 1, 2])
@@ -271,9 +269,9 @@ def _turned(kitti: Path, k: int) -> np.ndarray:
 
 @pytest.mark.parametrize("case", ["empty", "nan", "turned"])
 def test_a_bad_sweep_mid_sequence_is_flagged_at_its_frame(kitti_dir, tmp_path, case):
-    """Fine before (kept as a check): an empty or all-NaN sweep at frame 6 takes the predicted
-    pose and is flagged; a sweep turned by 180 deg (a frame from elsewhere) is flagged at that
-    frame by its residual. The variant finishes, and the outputs hold one line per frame."""
+    """An empty or all-NaN sweep at frame 6 takes the predicted pose and is flagged; a sweep turned by 180 deg
+    (a frame from elsewhere) is flagged at that frame by its residual. The variant finishes, and the outputs
+    hold one line per frame."""
     bad = {
         "empty": np.zeros((0, 4)),
         "nan": np.full((1000, 4), np.nan),
@@ -290,9 +288,8 @@ def test_a_bad_sweep_mid_sequence_is_flagged_at_its_frame(kitti_dir, tmp_path, c
 
 
 def test_strided_pcd_sweeps_without_times_keep_their_spacing(kitti_dir, tmp_path):
-    """Before (fixed by the lead in data_tools/formats/pcd.py): KITTI 00 sweeps as PCDs without times, every
-    5th: frames 0.5 s apart were timed 0.1 s apart (0.1, 0.2, 0.3, 0.4: the organiser's count of
-    sweeps read), so the TUM files and the guard's speed bound took 0.1 s; now sweep i at i periods."""
+    """KITTI 00 sweeps as PCDs without times, every 5th: sweep i is timed at i periods (keyframes 0.5 s apart),
+    so the TUM files and the guard's speed bound use 0.5 s."""
     from data_tools.formats.pcd import write_pcd
     from prc_slam.jobs.common import open_input
 

@@ -9,10 +9,9 @@ from tests.conftest import SHARED_DATA
 
 
 def test_detect_warns_when_one_class_takes_every_return(caplog):
-    """Before: a flat 80 m x 80 m aerial-like tile given to ``detect`` came out 120,000 of 120,000
-    points 'vertical' without a word (PRC's one-class check does not look at the detectors'
-    labels). Hand case on the sink: 1,200 returns, all one class, warned once and counted; a
-    frame of two classes is not."""
+    """``detect`` on a flat 80 m x 80 m aerial-like tile (every return 'vertical') warns that one class took
+    every return (PRC's one-class check does not see the detectors' labels). Hand case on the sink: 1,200
+    returns of one class are warned once and counted; a frame of two classes is not."""
     import logging
     from types import SimpleNamespace
 

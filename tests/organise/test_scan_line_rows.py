@@ -66,7 +66,8 @@ def organised_pair(tmp_path: Path) -> tuple[SweepFolder, SweepFolder, np.ndarray
 
 
 def test_organised_pcd_with_one_firing_per_row_is_organised_by_rings(tmp_path, caplog):
-    """Before: a 720 x 16 range image (720 'rings' of 16 columns), one warning about row order."""
+    """An organised PCD written one firing per row (``HEIGHT`` = 720 columns, ``WIDTH`` = 16 beams) is organised
+    into 16 rings of 720 columns, with a warning about the row order."""
     by_rows, by_firings, grid = organised_pair(tmp_path)
     ref = by_rows[0]
     with caplog.at_level(logging.WARNING):
@@ -115,7 +116,8 @@ def rosette(n: int = 20000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_livox_line_field_is_not_taken_as_rings(tmp_path):
-    """Before: 6 'rings' of ~200,000 columns for 20,000 points, 95 % noise, no warning."""
+    """Livox's ``line`` field (the laser of a non-repetitive pattern) is not taken as a ring: a rosette of
+    20,000 points is not organised as 6 rings of ~200,000 columns."""
     xyz, t = rosette()
     write_pcd(
         tmp_path / "000000.pcd",

@@ -11,8 +11,8 @@ from tests.inputs.grids import spinning_grid
 
 
 def test_nuscenes_five_value_bins_are_read_with_their_ring(tmp_path):
-    """nuScenes ``*.pcd.bin``: x y z intensity ring. Before: read as 4 values per point (garbage
-    points; 'cannot organise' blaming the sensor) whenever the size fitted 16-byte points."""
+    """nuScenes ``*.pcd.bin`` (x y z intensity ring) is read as five values per point with its ring, even when
+    the file size would also fit 16-byte points."""
     from data_tools.formats.pcd import read_bin
 
     grid = spinning_grid(16, 720)

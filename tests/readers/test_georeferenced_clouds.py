@@ -85,7 +85,7 @@ def _pcd(path: Path, xyz: np.ndarray) -> Path:
     ("suffix", "writer"), [(".pcd", _pcd), (".npy", _npy), (".ply", _ply_float32)], ids=["pcd", "npy", "ply"]
 )
 def test_float32_utm_coordinates_are_warned(tmp_path, caplog, suffix, writer):
-    """Before: float32 northings of 5.4e6 (one value per 0.5 m) were classified without a word."""
+    """float32 northings of 5.4e6 keep one value per 0.5 m: the reader warns before the cloud is classified."""
     from data_tools.formats.clouds import cloud_chunks
 
     xyz = block_scene(3000) + UTM
@@ -127,8 +127,8 @@ UTM32N_WKT = (
 
 @pytest.mark.parametrize("suffix", [".las", ".laz"])
 def test_the_classified_clouds_keep_the_input_crs(tmp_path, suffix):
-    """Before: a UTM tile with its WKT CRS came out as LAS files without one (a GIS placed the
-    classified clouds nowhere)."""
+    """The classified clouds of a UTM tile carry its WKT coordinate reference system, so a GIS places them where
+    the input was."""
     import laspy
     from laspy.vlrs.known import WktCoordinateSystemVlr
 

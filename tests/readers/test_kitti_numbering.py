@@ -27,8 +27,8 @@ def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
 
 
 def test_kitti_sweeps_numbered_from_10_take_their_own_poses_and_times(tmp_path):
-    """Before: sweeps 10, 11, 13, 14 beside the sequence's full poses.txt / times.txt took lines
-    1-4 (the ground truth of other sweeps, without a word)."""
+    """Sweeps 10, 11, 13, 14 beside the sequence's full ``poses.txt`` / ``times.txt`` take lines 10, 11, 13, 14
+    (their own ground truth), not lines 1-4."""
     from data_tools.formats.kitti import KittiSequence
 
     seq = KittiSequence(_kitti_folder(tmp_path, [10, 11, 13, 14], 16))

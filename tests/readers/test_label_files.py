@@ -49,8 +49,8 @@ def _with_labels(root: Path, bad: np.ndarray | None) -> None:
     ids=["count", "uint16", "uint64"],
 )
 def test_a_label_file_that_does_not_fit_leaves_its_frame_classified(tmp_path, bad, message):
-    """Before: the whole frame was skipped (no labels written for it, not registered by odometry)
-    because its reference labels did not fit; now it is classified and only not scored."""
+    """A label file that does not fit its sweep (point count, integer width) leaves the frame classified,
+    written and registered by odometry; only its scores are left out, with a warning."""
     from typer.testing import CliRunner
 
     from prc_slam.cli import app

@@ -20,8 +20,7 @@ def block_scene(n: int = 30_000, seed: int = 0) -> np.ndarray:
 
 
 def test_a_truncated_laz_map_is_a_one_line_error(tmp_path):
-    """Before: a traceback (lazrs.LazrsError from reading the file's own classes); in a batch,
-    three attempts and a failed row without the file's name."""
+    """A truncated LAZ map given to ``mapclass`` is a one-line error naming the file (no ``lazrs`` traceback)."""
     import laspy
     from typer.testing import CliRunner
 

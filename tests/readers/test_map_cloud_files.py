@@ -55,8 +55,8 @@ def write_las(
     ],
 )
 def test_a_cloud_without_spread_is_a_one_line_error(tmp_path, name, xyz, needle):
-    """Before: 80 copies of one point came out as 80 'ground' points, and a cloud of NaNs 'wrote'
-    a map_classified.las that was never written (LAS cannot store a point without coordinates)."""
+    """A cloud without spread (80 copies of one point, or only NaNs) is a one-line error rather than a
+    classification of one point or an output that LAS cannot store."""
     from data_tools.errors import DataError
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
@@ -117,9 +117,8 @@ def _ply(path: Path, xyz: np.ndarray, fmt: str, *, extra: bool = True, faces: bo
 
 @pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian", "binary_big_endian"])
 def test_ply_map_clouds_are_read_exactly_and_cut_ones_are_errors(tmp_path, fmt):
-    """Before (Open3D): a PLY cut in half was read as the whole vertex count, the missing half
-    filled with zeros ('RPly: Error reading ...' on stderr, 10,000 points classified); a cut ascii
-    PLY could end in a SystemError traceback; a PLY without y and z was read as points on a line."""
+    """PLY map clouds (ascii, binary little and big endian, with extra properties and faces) are read exactly; a
+    PLY cut short or without y and z is a one-line error, not zeros filling the missing vertices."""
     from data_tools.errors import DataError
     from data_tools.formats.clouds import cloud_chunks
 
@@ -150,8 +149,8 @@ def _patch_count(path: Path, count: int) -> Path:
 
 
 def test_las_records_beyond_the_header_count_are_an_error(tmp_path):
-    """Before: a header announcing 1,000 of 3,000 records classified 1,000 points and dropped the
-    rest without a word; a cut file said laspy's 'buffer size must be a multiple of element size'."""
+    """A LAS header that announces fewer records than the file holds, or a file cut inside its records, is a
+    one-line error rather than a silently shortened cloud."""
     from data_tools.errors import DataError
     from data_tools.formats.clouds import cloud_chunks, cloud_classes, cloud_size
     from prc_slam.config import Config

@@ -1,6 +1,5 @@
-"""Map clouds as files: geographic degrees are refused, metric clouds of any offset are read, empty
-clouds and clouds without spread are errors, coarse LAS scales are warned, PLY clouds are read
-exactly and cut PLY or LAS files are errors.
+"""Map cloud coordinates: geographic degrees are refused, metric clouds at any offset are read,
+an empty cloud is an error, a coarse LAS scale is warned once.
 """
 
 from __future__ import annotations
@@ -35,7 +34,8 @@ def block_scene(n: int = 2000, seed: int = 0) -> tuple[np.ndarray, np.ndarray, n
 
 
 def test_map_cloud_in_geographic_degrees_is_refused(tmp_path):
-    """Before: lon/lat in degrees with heights in metres classified as 84 % poles, no warning."""
+    """Longitude/latitude in degrees with heights in metres is refused: classified as is, most of it would come
+    out as poles."""
     from data_tools.formats.clouds import cloud_chunks
 
     x, y, z = block_scene()
@@ -59,7 +59,7 @@ def test_metric_map_clouds_are_read(tmp_path, offset):
 
 
 def test_an_empty_map_cloud_is_an_error(tmp_path):
-    """Before: exit 0 with empty outputs and not a word."""
+    """An empty map cloud is an error, not a run that exits 0 with empty outputs."""
     import laspy
     from typer.testing import CliRunner
 

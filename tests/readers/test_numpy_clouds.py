@@ -33,8 +33,8 @@ def _numpy_variants(xyz: np.ndarray) -> dict[str, object]:
 
 @pytest.mark.parametrize("name", ["n4.npy", "n6.npy", "structured.npy", "alone.npz", "named.npz"])
 def test_numpy_clouds_with_more_columns_fields_or_in_an_npz_are_read(tmp_path, name):
-    """Before: ``(N, 4)`` / ``(N, 6)`` arrays and structured ones were refused ('expected (N, 3)'),
-    and an ``.npz`` cloud was opened as an Ouster sweep ('the input has no ground-truth poses')."""
+    """``(N, 4)`` / ``(N, 6)`` arrays, structured arrays with x, y, z fields and an ``.npz`` holding a cloud are
+    read as clouds (the npz is not taken for an Ouster sweep)."""
     from data_tools.formats.clouds import cloud_chunks, cloud_size, is_cloud_file
 
     xyz, _ = block_scene(500)

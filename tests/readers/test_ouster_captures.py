@@ -1,5 +1,5 @@
-"""Ouster captures: on another UDP port, with other traffic, as pcapng; lidar modes and profiles read
-every pixel; metadata of another lidar mode is an error.
+"""Ouster captures as they come off a network: a sensor on another UDP port than its json says is
+an error naming the ports; other traffic and pcapng read the same sweeps.
 """
 
 from __future__ import annotations
@@ -83,8 +83,8 @@ def ouster_capture() -> tuple[Path, Path]:
 
 
 def test_ouster_capture_on_another_port_names_the_ports(ouster_capture, tmp_path):
-    """A sensor configured to another UDP port than its json says: the error gives the json's
-    port and the capture's ports and packet sizes (it said only 'no lidar packets matching')."""
+    """A sensor configured to another UDP port than its json says: the error gives the json's port and the
+    capture's ports and packet sizes."""
     pcap, meta = ouster_capture
     _, recs = pcap_records(pcap)
     path = write_pcap(tmp_path / "moved.pcap", [(s, with_ports(f, 7777)) for s, f in recs])

@@ -75,8 +75,8 @@ def ouster_capture(root: Path, name: str, mode: str, profile: str, frames: int =
     ],
 )
 def test_ouster_lidar_modes_and_profiles_read_every_pixel(tmp_path, caplog, mode, profile, resolution_mm):
-    """Fine before, except that the second return of a dual-return profile was dropped without a
-    word (now warned)."""
+    """Every lidar mode (512x10, 1024x20, 2048x10) and profile reads every pixel at the profile's range
+    resolution; a dual-return profile reads its first return and warns that the second is dropped."""
     path, truth = ouster_capture(tmp_path, "cap", mode, profile)
     cols, hz = (int(v) for v in mode.split("x"))
     with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
@@ -96,9 +96,9 @@ def test_ouster_lidar_modes_and_profiles_read_every_pixel(tmp_path, caplog, mode
 
 @pytest.mark.parametrize("capture_mode, json_mode", [("2048x10", "1024x10"), ("512x10", "1024x10")])
 def test_ouster_metadata_of_another_lidar_mode_is_a_one_line_error(tmp_path, capture_mode, json_mode):
-    """Before: a 2048-column capture read with a 1024x10 json gave sweeps of 1024 columns, half the
-    points lost without a word; a 512-column capture read with a 1024x10 json put every point at
-    twice its azimuth, warned only as '512 of 1024 columns missing (dropped packets ...)'."""
+    """Metadata of another lidar mode than the capture's (a 2048- or 512-column capture with a 1024x10 json) is
+    a one-line error naming the measurement ids and the mode, not sweeps with half the points lost or every
+    point at twice its azimuth."""
     path, _ = ouster_capture(tmp_path, "cap", capture_mode, "RNG19_RFL8_SIG16_NIR16")
     ouster_capture(tmp_path, "other", json_mode, "RNG19_RFL8_SIG16_NIR16", frames=1)
     shutil.copy(tmp_path / "other.json", tmp_path / "cap.json")
@@ -110,8 +110,8 @@ def test_ouster_metadata_of_another_lidar_mode_is_a_one_line_error(tmp_path, cap
 
 
 def test_a_hesai_capture_says_what_it_is(tmp_path):
-    """Before: 'no Ouster sensor metadata: expected hesai.json beside it' (and, with a json beside
-    it, 'no lidar packets matching'). Ouster and Velodyne captures are not affected."""
+    """A Hesai capture (``0xEEFF`` packets) is an error that names Hesai and how to convert it, with or without
+    a json beside it; Ouster and Velodyne captures are not affected."""
     from data_tools.formats.ouster_pcap import OusterPcapSequence
 
     pandar40p = [b"\xee\xff" + bytes(1260)] * 40

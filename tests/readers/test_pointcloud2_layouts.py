@@ -71,8 +71,8 @@ def prc_labels_of(rec: np.ndarray, **cloud_kw) -> np.ndarray:
 
 @pytest.mark.parametrize("layout", sorted(DRIVER_LAYOUTS))
 def test_driver_point_layouts_of_a_real_sweep_give_the_same_labels(layout):
-    """These were tried on ROS 1 / ROS 2 / MCAP recordings of the real VLP-16 sweep through
-    ``classify``: every one gave the labels of the reference layout (velodyne_pointcloud's)."""
+    """The real VLP-16 sweep in every driver's point layout (ROS 1 / ROS 2 / MCAP through ``classify``) gives
+    the labels of the reference layout (velodyne_pointcloud's)."""
     fields, itemsize, big = DRIVER_LAYOUTS[layout]
     ref = prc_labels_of(vlp16_records(VELODYNE_LAYOUT, 22))
     np.testing.assert_array_equal(prc_labels_of(vlp16_records(fields, itemsize, big=big)), ref)

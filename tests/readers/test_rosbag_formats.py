@@ -42,10 +42,9 @@ def assert_sweep_read(scan, rec: np.ndarray) -> None:
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 @pytest.mark.parametrize("compression", ["MESSAGE", "FILE"])
 def test_compressed_rosbag2_bags_are_read_from_the_folder_or_any_of_their_files(tmp_path, storage, compression):
-    """Before: the folder was read, but its storage file given alone was 'damaged or truncated
-    recording ... Invalid or unsupported CDR encapsulation' (message compression) or an 'unknown
-    input format' (file compression, ``.db3.zstd`` / ``.mcap.zstd``); a file-compressed MCAP bag
-    was taken for sqlite3 storage."""
+    """Compressed rosbag2 bags (sqlite3 and MCAP storage, per-message and per-file compression) are read from
+    their folder or from any of their storage files, through the folder's ``metadata.yaml``, in the bag's own
+    storage."""
     msgs, recs = ros2_sweeps()
     bag = write_ros2(tmp_path / "bag", msgs, storage=storage, compression=compression)
     (inner,) = [p for p in bag.iterdir() if p.name != "metadata.yaml"]
@@ -58,10 +57,9 @@ def test_compressed_rosbag2_bags_are_read_from_the_folder_or_any_of_their_files(
 
 
 def test_a_compressed_rosbag2_file_without_its_metadata_is_a_one_line_error(tmp_path, monkeypatch):
-    """Before: 'damaged or truncated recording ... Invalid or unsupported CDR encapsulation' for a
-    message-compressed ``.db3`` alone, 'unknown input format' for a ``.mcap.zstd`` alone; and an
-    error raised while opening (two ``.db3`` without metadata.yaml) also printed 'Exception ignored
-    in RosbagSequence.__del__ ... AttributeError'."""
+    """A message-compressed ``.db3`` or a ``.mcap.zstd`` without its ``metadata.yaml`` is a one-line error
+    saying why; an error while opening (two ``.db3`` without metadata) prints nothing from
+    ``RosbagSequence.__del__``."""
     msgs, _ = ros2_sweeps(frames=1)
     alone = tmp_path / "alone"
     alone.mkdir()
@@ -111,7 +109,8 @@ def layout(big: bool = False, xyz: str = "f4", ring: str = "u2", time: str = "f4
     ids=["big-endian", "padded", "float64-uint8-ring", "not-dense", "organised-big-endian-row-padded"],
 )
 def test_pointcloud2_layouts_in_a_bag_give_the_points_rows_and_times(tmp_path, dtype, options):
-    """Fine before: every layout is decoded exactly and organised by its ring field."""
+    """Big-endian, padded, row-padded, float64 and organised PointCloud2 layouts with NaN: every layout is
+    decoded exactly and organised by its ring field."""
     msgs, recs = ros2_sweeps(dtype, **options)
     bag = write_ros2(tmp_path / "bag", msgs, storage="mcap")
     for scan, rec in zip(open_dataset(bag), recs, strict=True):
@@ -153,8 +152,8 @@ def ros1_messages(frames: int = 3) -> tuple[object, list, list[np.ndarray]]:
 
 @pytest.mark.parametrize("compression", [None, "BZ2", "LZ4"])
 def test_ros1_bags_with_compressed_chunks_and_two_publishers(tmp_path, compression):
-    """Fine before: bz2 / lz4 chunks, two connections (publishers) on one topic, read in order
-    and by index."""
+    """ROS 1 bags with bz2 / lz4 chunks and two connections (publishers) on one topic are read in order and by
+    index."""
     from rosbags.rosbag1 import Writer
 
     ts, msgs, recs = ros1_messages()
@@ -177,8 +176,8 @@ def test_ros1_bags_with_compressed_chunks_and_two_publishers(tmp_path, compressi
 
 
 def test_a_topic_with_messages_of_another_type_reads_its_clouds(tmp_path, caplog):
-    """Before: a topic whose publishers sent PointCloud2 and another type (rosbags gives it no
-    type) crashed with ``AttributeError: 'NoneType' object has no attribute 'replace'``."""
+    """A topic whose publishers sent PointCloud2 and another type (rosbags gives it no type) reads its
+    PointCloud2 messages, with a warning."""
     from rosbags.rosbag1 import Writer
 
     ts, msgs, recs = ros1_messages(2)
@@ -201,7 +200,7 @@ def test_a_topic_with_messages_of_another_type_reads_its_clouds(tmp_path, caplog
 
 
 def test_empty_and_cut_ros1_bags_are_one_line_errors(tmp_path):
-    """Fine before."""
+    """Empty and cut ROS 1 bags are one-line errors naming the file."""
     from rosbags.rosbag1 import Writer
 
     ts, msgs, _ = ros1_messages(3)

@@ -9,8 +9,8 @@ import pytest
 
 
 def test_a_folder_of_sweeps_from_several_ouster_sensors_is_warned(ouster_files, tmp_path, caplog):
-    """Before: the shared decoded folder (OS-0, OS-1, OS-2) ran as one sequence; odometry stopped at
-    frame 1 on a frame time going back, with no word about the cause."""
+    """A folder of sweeps of several Ouster sensors (OS-0, OS-1, OS-2) is warned when opened, as one sequence of
+    them has frame times going back."""
     import shutil
 
     from data_tools.formats.ouster import OusterSequence

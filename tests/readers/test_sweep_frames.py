@@ -14,8 +14,8 @@ UTM = np.array([512_345.678, 5_412_345.432, 300.0])
 
 
 def test_sweeps_in_a_world_frame_are_told_apart_from_millimetres(tmp_path, caplog):
-    """Before: a sweep written in UTM coordinates was warned as 'not in metres (millimetres?
-    centimetres?)', which sends the user to convert units that are right."""
+    """A sweep written in UTM coordinates is warned as being in a world frame, not as 'not in metres
+    (millimetres? centimetres?)', which would send the user to convert units that are right."""
     import contextlib
 
     from data_tools import DataError
@@ -41,8 +41,8 @@ def test_sweeps_in_a_world_frame_are_told_apart_from_millimetres(tmp_path, caplo
 
 
 def test_a_recording_of_registered_clouds_is_warned(tmp_path, caplog):
-    """A bag topic of clouds already in the map frame (FAST-LIO's ``/cloud_registered``, 300 m
-    from the origin) was organised without a word about the frame."""
+    """A bag topic of clouds already in the map frame (FAST-LIO's ``/cloud_registered``, 300 m from the origin)
+    is warned as registered clouds."""
     import contextlib
 
     from data_tools import DataError

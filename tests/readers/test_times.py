@@ -113,8 +113,8 @@ def ros_sweep(time_values: np.ndarray, stamp_ns: int):
 
 @pytest.mark.parametrize("base", [1.2e9, 5000.0])  # another epoch; the sensor's uptime
 def test_ros_point_times_on_another_clock_start_at_the_header_stamp(base, caplog):
-    """Before: point times 5e8 s before (or 5000 s after) the header stamp; odometry stopped at
-    frame 2 ('registration impossible')."""
+    """Point times on another clock than the header stamp (5e8 s before or 5000 s after it) are rebased so that
+    the sweep starts at the stamp."""
     from data_tools.formats.rosbag import detect_time_field
 
     col_t = np.arange(720) * 0.1 / 720
@@ -205,8 +205,7 @@ def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
 
 
 def test_a_gap_in_the_frame_times_is_warned(tmp_path, caplog):
-    """Before: sweeps 0-3 and 10-15 of KITTI 00 with their times.txt (0.7 s missing) ran without a
-    word; the prc variant fell 4 m behind at the gap (raw coped)."""
+    """Sweeps 0-3 and 10-15 of KITTI 00 with their ``times.txt`` (0.7 s missing) are warned of the gap."""
     from data_tools.formats.kitti import KittiSequence
     from data_tools.formats.pcd import SweepFolder
     from data_tools.formats.trajectory_io import warn_time_gaps
@@ -270,9 +269,8 @@ VELODYNE_LAYOUT += [("time", "f4", 18)]
 
 
 def test_a_recording_whose_header_stamps_are_unset_is_timed_by_its_log_times(tmp_path, caplog):
-    """Every header stamp 0 (a driver that leaves them unset): the frame times were all 0 and the
-    odometry stopped at frame 1; the log times time the frames now, and the messages written
-    back keep their own stamps."""
+    """Every header stamp 0 (a driver that leaves them unset): the log times time the frames, and the messages
+    written back keep their own stamps."""
     from data_tools.formats.rosbag import RosbagSequence, cloud_from_records
     from data_tools.formats.stream_out import RosCloudWriter
 

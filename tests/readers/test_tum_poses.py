@@ -16,9 +16,9 @@ def _yaw_poses(n: int) -> np.ndarray:
 
 
 def test_tum_poses_are_matched_to_the_frames_by_time(tmp_path, caplog):
-    """Before: ``mapclass SEQ --poses traj.tum`` (as ``odometry --pose-format tum`` writes it) was
-    refused ('8 values, expected 12'). Now TUM poses are taken by time (a trajectory of more frames,
-    out of order), or in order with a warning when the times are on another clock."""
+    """``mapclass SEQ --poses traj.tum`` (as ``odometry --pose-format tum`` writes it): TUM poses are matched to
+    the frames by time (a trajectory of more frames, out of order), or taken in order with a warning when the
+    times are on another clock."""
     import logging
 
     from data_tools.formats.trajectory_io import read_pose_file, write_kitti_poses, write_tum_poses

@@ -34,7 +34,7 @@ def test_ouster_npz_with_ranges_in_metres_is_refused(ouster_files, tmp_path):
 
 
 def test_sweeps_in_millimetres_are_warned(tmp_path, caplog):
-    """Before: PRC (paper preset) labelled 100 % noise, no warning."""
+    """Sweeps in millimetres are warned (PRC's paper preset would label every point noise)."""
     grid = spinning_grid(16, 720) * 1000.0
     (tmp_path / "pcd").mkdir()
     write_pcd(tmp_path / "pcd" / "000000.pcd", flat_fields(np.swapaxes(grid, 0, 1)))

@@ -117,8 +117,8 @@ LINK_HEADERS = {  # link type -> header put before the IPv4 packet of an Etherne
 
 @pytest.mark.parametrize("link", sorted(LINK_HEADERS))
 def test_captures_of_other_link_types_decode_the_same_sweeps(link, vlp16_frames, reference, tmp_path):
-    """``tcpdump -i any`` writes Linux cooked frames (v2 on current libpcap); VLAN-tagged Ethernet,
-    raw IP: the same sweeps (every frame was parsed as Ethernet before)."""
+    """``tcpdump -i any`` writes Linux cooked frames (v2 on current libpcap); VLAN-tagged Ethernet and raw IP
+    captures decode the same sweeps as Ethernet ones."""
     code, header = LINK_HEADERS[link]
     path = write_pcap(tmp_path / "v.pcap", [(s, header + eth[14:]) for s, eth in vlp16_frames], link=code)
     same_sweeps(open_dataset(path), reference)
@@ -207,8 +207,8 @@ VELODYNE_LAYOUT += [("time", "f4", 18)]
 
 @pytest.mark.parametrize("kind", ["ros1", "ros2"])
 def test_a_recording_of_raw_velodyne_packets_is_decoded_like_the_capture(kind, vlp16_frames, reference, tmp_path):
-    """A bag recorded from ``/velodyne_packets`` (velodyne_msgs/VelodyneScan, common in public
-    datasets) was refused ('no PointCloud2 topic'): its packets are decoded as a capture's."""
+    """A bag recorded from ``/velodyne_packets`` (velodyne_msgs/VelodyneScan, common in public datasets) is
+    decoded like the capture of the same packets."""
     payloads, stamps, _ = vlp16_stream(n_sweeps=2.3)
     name = "packets.bag" if kind == "ros1" else "packets"
     path = velodyne_scan_bag(tmp_path / name, kind, payloads, stamps, "/velodyne_packets")

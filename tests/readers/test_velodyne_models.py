@@ -76,8 +76,8 @@ def vls128_stream(n_sweeps: float = 1.2):
     ids=["vlp32c", "hdl32e", "vlp32c-dual", "vls128"],
 )
 def test_other_velodyne_models_give_one_row_per_laser(tmp_path, model, options, rows):
-    """Fine before: the model from the factory byte, every laser a row, every decoded point kept
-    (a dual return's last return shares its firing's slot), one sweep per revolution."""
+    """VLP-32C, HDL-32E and VLS-128 packets: the model from the factory byte, every laser a row, every decoded
+    point kept (a dual return's last return shares its firing's slot), one sweep per revolution."""
     pytest.importorskip("velodyne_decoder", reason="velodyne-decoder is not installed")
     stream = velodyne32_stream(**options) if options else vls128_stream()
     path = write_pcap(tmp_path / f"{model}.pcap", *stream)
@@ -97,7 +97,7 @@ def test_other_velodyne_models_give_one_row_per_laser(tmp_path, model, options, 
 
 @pytest.mark.parametrize("rpm, cols", [(300, 3600), (1200, 900)])
 def test_vlp16_at_other_speeds_gives_one_column_per_firing(tmp_path, rpm, cols):
-    """Fine before: sweeps of 60 / rpm seconds with one column per firing."""
+    """A VLP-16 at 300 and 1200 rpm gives sweeps of 60 / rpm seconds with one column per firing."""
     pytest.importorskip("velodyne_decoder", reason="velodyne-decoder is not installed")
     payloads, stamps, _ = vlp16_stream(n_sweeps=2.2, rpm=rpm)
     ds = open_dataset(write_pcap(tmp_path / "v.pcap", payloads, stamps))
@@ -108,8 +108,8 @@ def test_vlp16_at_other_speeds_gives_one_column_per_firing(tmp_path, rpm, cols):
 
 
 def test_a_velodyne_model_other_than_the_packets_is_a_one_line_error(tmp_path):
-    """Before: the decoder's 'Expected model ID <34> in packet, got <40>. Note: if the device is
-    HDL-64E, please set the model in Config explicitly.'; models sharing packets still read."""
+    """``--model`` naming another Velodyne than the packets' factory byte is a one-line error naming both;
+    models that share a packet format still read."""
     pytest.importorskip("velodyne_decoder", reason="velodyne-decoder is not installed")
     path = write_pcap(tmp_path / "v32.pcap", *velodyne32_stream(0x28))
     with pytest.raises(DataError) as exc:
