@@ -5,22 +5,14 @@ points without a return.
 from __future__ import annotations
 
 import json
-import struct
 
 import numpy as np
 import pytest
 
 from data_tools.formats.rosbag import cloud_from_records
+from tests.inputs.pointcloud2 import EPOCH_NS
 from tests.inputs.rosbags import ros2_sweeps, write_ros2
-from tests.inputs.velodyne import write_pcap
-
-EPOCH_NS = 1_700_000_000 * 10**9
-
-
-VELODYNE_LAYOUT = [("x", "f4", 0), ("y", "f4", 4), ("z", "f4", 8), ("intensity", "f4", 12), ("ring", "u2", 16)]
-
-
-VELODYNE_LAYOUT += [("time", "f4", 18)]
+from tests.inputs.velodyne import velodyne32_stream, write_pcap
 
 
 def test_the_summary_counts_points_at_the_origin_as_points_without_a_return(tmp_path):
@@ -43,32 +35,6 @@ def test_the_summary_counts_points_at_the_origin_as_points_without_a_return(tmp_
     assert res.exit_code == 0, res.output
     zeros = int((grid == 0).all(axis=-1).sum())
     assert f"{zeros} points without a return" in res.output and "non-finite" not in res.output
-
-
-FIRING_32 = 55.296e-6  # s per firing of the 32-laser models (one block)
-
-
-def velodyne32_stream(factory: int, *, dual: bool = False, n_sweeps: float = 1.3, unit: float = 0.004):
-    """Data packets of a 32-laser Velodyne (one firing per block; ``dual``: blocks in pairs, last
-    return then strongest, the last 2 m behind on every third laser) in a round room."""
-    deg_per_s = 3600.0
-    firings = int(n_sweeps * 0.1 / FIRING_32) // 12 * 12
-    per_packet = 6 if dual else 12
-    payloads, stamps = [], []
-    for p0 in range(0, firings, per_packet):
-        buf = bytearray()
-        for j in range(p0, p0 + per_packet):
-            az = (j * FIRING_32 * deg_per_s + 10.0) % 360.0
-            r = 10.0 + 2.0 * np.sin(np.radians(az) * 3)
-            for last in (True, False) if dual else (False,):
-                buf += b"\xff\xee" + struct.pack("<H", round(az * 100) % 36000)
-                for k in range(32):
-                    rk = r + 2.0 if last and k % 3 == 0 else r
-                    buf += struct.pack("<HB", int(rk / unit), 50 if last else 100)
-        buf += struct.pack("<IBB", int(p0 * FIRING_32 * 1e6), 0x39 if dual else 0x37, factory)
-        payloads.append(bytes(buf))
-        stamps.append(1.0e9 + p0 * FIRING_32)
-    return payloads, stamps
 
 
 def test_classify_on_new_inputs_runs_or_says_why(tmp_path):

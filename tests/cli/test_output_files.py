@@ -131,9 +131,3 @@ def test_output_files_are_written_whole_or_not_at_all(tmp_path):
     assert list(tmp_path.iterdir()) == []
     write_label_file(path, np.array([1, 2, 3], dtype=np.uint8))
     assert np.fromfile(path, np.uint32).tolist() == [1, 2, 3] and len(list(tmp_path.iterdir())) == 1
-
-
-VELODYNE_LAYOUT = [("x", "f4", 0), ("y", "f4", 4), ("z", "f4", 8), ("intensity", "f4", 12), ("ring", "u2", 16)]
-
-
-VELODYNE_LAYOUT += [("time", "f4", 18)]

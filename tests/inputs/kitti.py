@@ -29,6 +29,8 @@ def synthetic_sweep(rings: int = 8, cols: int = 360, seed: int = 0, keep: float 
 
 
 def make_kitti(root: Path, frames: int = 2, labels: bool = True) -> Path:
+    """A KITTI folder of ``frames`` synthetic sweeps with calibration, times 0.1 s apart, poses 1 m apart
+    along x and (``labels``) SemanticKITTI labels: road (40) below z = -3 m, building (50) above."""
     (root / "velodyne").mkdir(parents=True)
     for i in range(frames):
         pts = synthetic_sweep(seed=i)
@@ -41,4 +43,22 @@ def make_kitti(root: Path, frames: int = 2, labels: bool = True) -> Path:
     (root / "times.txt").write_text("".join(f"{0.1 * i:e}\n" for i in range(frames)))
     pose = "1 0 0 {x} 0 1 0 0 0 0 1 0\n"
     (root / "poses.txt").write_text("".join(pose.format(x=i) for i in range(frames)))
+    return root
+
+
+def kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
+    """A KITTI layout with sweeps ``NNNNNN.bin`` for ``numbers`` and ``n_lines`` poses (pose k at
+    x = k metres) and times (k x 0.1 s), an identity ``Tr``."""
+    from tests.inputs.grids import spinning_grid
+
+    (root / "velodyne").mkdir(parents=True)
+    for k in numbers:
+        g = spinning_grid(seed=k).reshape(-1, 3)
+        g = g[np.isfinite(g).all(axis=1)]
+        np.column_stack([g, np.zeros(len(g), np.float32)]).astype(np.float32).tofile(root / "velodyne" / f"{k:06d}.bin")
+    poses = np.tile(np.eye(4)[:3].ravel(), (n_lines, 1))
+    poses[:, 3] = np.arange(n_lines)
+    np.savetxt(root / "poses.txt", poses)
+    np.savetxt(root / "times.txt", np.arange(n_lines) * 0.1)
+    (root / "calib.txt").write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
     return root

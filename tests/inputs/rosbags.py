@@ -108,6 +108,8 @@ def ros2_message(typestore, rec: np.ndarray, stamp_ns: int, *, height: int = 1, 
 
 
 def write_ros2(path: Path, msgs: list, *, storage: str = "sqlite3", compression: str | None = None) -> Path:
+    """A rosbag2 bag of PointCloud2 messages on ``/points`` in ``storage`` (sqlite3 or mcap), zstd-compressed per
+    message or per file when ``compression`` is ``"MESSAGE"`` or ``"FILE"``."""
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -125,6 +127,7 @@ def write_ros2(path: Path, msgs: list, *, storage: str = "sqlite3", compression:
 
 
 def ros2_sweeps(dtype: np.dtype = VELODYNE, frames: int = 2, **options) -> tuple[list, list[np.ndarray]]:
+    """``frames`` room sweeps of ``dtype`` 0.1 s apart as ROS 2 PointCloud2 messages, and their records."""
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS2_HUMBLE)

@@ -61,3 +61,29 @@ def write_pcap(path: Path, payloads: list[bytes], stamps: list[float], port: int
             eth = b"\xff" * 6 + b"\x60\x76\x88\x00\x00\x01" + b"\x08\x00" + ip
             f.write(struct.pack("<IIII", int(s), round(s % 1 * 1e6), len(eth), len(eth)) + eth)
     return path
+
+
+def velodyne32_stream(factory: int, *, dual: bool = False, n_sweeps: float = 1.3, unit: float = 0.004):
+    """Data packets of a 32-laser Velodyne (one firing per block; ``dual``: blocks in pairs, last
+    return then strongest, the last 2 m behind on every third laser) in a round room."""
+    deg_per_s = 3600.0
+    firings = int(n_sweeps * 0.1 / FIRING_32) // 12 * 12
+    per_packet = 6 if dual else 12
+    payloads, stamps = [], []
+    for p0 in range(0, firings, per_packet):
+        buf = bytearray()
+        for j in range(p0, p0 + per_packet):
+            az = (j * FIRING_32 * deg_per_s + 10.0) % 360.0
+            r = 10.0 + 2.0 * np.sin(np.radians(az) * 3)
+            for last in (True, False) if dual else (False,):
+                buf += b"\xff\xee" + struct.pack("<H", round(az * 100) % 36000)
+                for k in range(32):
+                    rk = r + 2.0 if last and k % 3 == 0 else r
+                    buf += struct.pack("<HB", int(rk / unit), 50 if last else 100)
+        buf += struct.pack("<IBB", int(p0 * FIRING_32 * 1e6), 0x39 if dual else 0x37, factory)
+        payloads.append(bytes(buf))
+        stamps.append(1.0e9 + p0 * FIRING_32)
+    return payloads, stamps
+
+
+FIRING_32 = 55.296e-6  # s per firing of the 32-laser models (one block)

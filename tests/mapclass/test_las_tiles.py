@@ -4,45 +4,12 @@ but not scored, ASPRS road surface and ignored ground count as ground.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from tests.inputs.las import ground_and_wall, write_las
+
 laspy = pytest.importorskip("laspy")
-
-
-def block_scene(n: int = 6000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """A 40 m x 40 m ground (ASPRS 2) with a 20 m wall 8 m high (ASPRS 6): points, classes."""
-    rng = np.random.default_rng(seed)
-    ground = np.column_stack([rng.uniform(0, 40, n), rng.uniform(0, 40, n), rng.normal(0, 0.02, n)])
-    m = n // 3
-    wall = np.column_stack([rng.uniform(10, 30, m), np.full(m, 30.0) + rng.normal(0, 0.02, m), rng.uniform(0, 8, m)])
-    return np.concatenate([ground, wall]), np.concatenate([np.full(n, 2), np.full(m, 6)]).astype(np.uint8)
-
-
-def write_las(
-    path: Path,
-    xyz: np.ndarray,
-    classes: np.ndarray | None = None,
-    *,
-    scale: float = 0.001,
-    offset: np.ndarray | None = None,
-    point_format: int = 6,
-    withheld: np.ndarray | None = None,
-) -> Path:
-    version = "1.4" if point_format >= 6 else "1.2"
-    header = laspy.LasHeader(point_format=point_format, version=version)
-    header.scales = np.array([scale] * 3)
-    header.offsets = np.floor(xyz.min(axis=0)) if offset is None else offset
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz.T
-    if classes is not None:
-        las.classification = classes
-    if withheld is not None:
-        las.withheld = withheld
-    las.write(path)
-    return path
 
 
 @pytest.mark.parametrize("scale", [0.0001, 0.01])
@@ -52,7 +19,7 @@ def test_the_classified_clouds_keep_the_input_scale_and_offsets(tmp_path, scale)
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
-    xyz, classes = block_scene()
+    xyz, classes = ground_and_wall()
     offset = np.array([500_000.0, 5_400_000.0, 100.0])
     xyz = xyz + np.array([500_123.4567, 5_400_321.1234, 120.0])
     src = laspy.read(write_las(tmp_path / "tile.las", xyz, classes, scale=scale, offset=offset))
@@ -73,7 +40,7 @@ def test_withheld_points_are_written_but_not_scored(tmp_path):
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
-    xyz, classes = block_scene()
+    xyz, classes = ground_and_wall()
     withheld = np.arange(len(xyz)) % 5 == 0
     wrong = classes.copy()
     wrong[withheld] = 6  # withheld ground points carry a wrong class: they must not count
@@ -95,7 +62,7 @@ def test_asprs_road_surface_and_ignored_ground_are_scored_as_ground(tmp_path):
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
-    xyz, classes = block_scene()
+    xyz, classes = ground_and_wall()
     coded = classes.copy()
     ground = np.flatnonzero(classes == 2)
     coded[ground[::2]] = 11

@@ -10,23 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-
-def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
-    """A KITTI layout with sweeps ``NNNNNN.bin`` for ``numbers`` and ``n_lines`` poses (pose k at
-    x = k metres) and times (k x 0.1 s), an identity ``Tr``."""
-    from tests.inputs.grids import spinning_grid
-
-    (root / "velodyne").mkdir(parents=True)
-    for k in numbers:
-        g = spinning_grid(seed=k).reshape(-1, 3)
-        g = g[np.isfinite(g).all(axis=1)]
-        np.column_stack([g, np.zeros(len(g), np.float32)]).astype(np.float32).tofile(root / "velodyne" / f"{k:06d}.bin")
-    poses = np.tile(np.eye(4)[:3].ravel(), (n_lines, 1))
-    poses[:, 3] = np.arange(n_lines)
-    np.savetxt(root / "poses.txt", poses)
-    np.savetxt(root / "times.txt", np.arange(n_lines) * 0.1)
-    (root / "calib.txt").write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
-    return root
+from tests.inputs.kitti import kitti_folder
+from tests.inputs.las import ground_and_wall, write_las
+from tests.inputs.poses import yaw_poses
 
 
 def test_mapclass_on_a_sequence_labelled_in_part_scores_the_labelled_frames(tmp_path):
@@ -35,7 +21,7 @@ def test_mapclass_on_a_sequence_labelled_in_part_scores_the_labelled_frames(tmp_
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import map_from_dataset, mapclass_job
 
-    root = _kitti_folder(tmp_path / "seq", [0, 1, 2, 3], 4)
+    root = kitti_folder(tmp_path / "seq", [0, 1, 2, 3], 4)
     (root / "labels").mkdir()
     n0 = (root / "velodyne" / "000000.bin").stat().st_size // 16
     np.full(n0, 40, np.uint32).tofile(root / "labels" / "000000.label")  # road, frame 0 only
@@ -57,48 +43,6 @@ def test_mapclass_on_a_sequence_labelled_in_part_scores_the_labelled_frames(tmp_
 laspy = pytest.importorskip("laspy")
 
 
-def block_scene(n: int = 6000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """A 40 m x 40 m ground (ASPRS 2) with a 20 m wall 8 m high (ASPRS 6): points, classes."""
-    rng = np.random.default_rng(seed)
-    ground = np.column_stack([rng.uniform(0, 40, n), rng.uniform(0, 40, n), rng.normal(0, 0.02, n)])
-    m = n // 3
-    wall = np.column_stack([rng.uniform(10, 30, m), np.full(m, 30.0) + rng.normal(0, 0.02, m), rng.uniform(0, 8, m)])
-    return np.concatenate([ground, wall]), np.concatenate([np.full(n, 2), np.full(m, 6)]).astype(np.uint8)
-
-
-def write_las(
-    path: Path,
-    xyz: np.ndarray,
-    classes: np.ndarray | None = None,
-    *,
-    scale: float = 0.001,
-    offset: np.ndarray | None = None,
-    point_format: int = 6,
-    withheld: np.ndarray | None = None,
-) -> Path:
-    version = "1.4" if point_format >= 6 else "1.2"
-    header = laspy.LasHeader(point_format=point_format, version=version)
-    header.scales = np.array([scale] * 3)
-    header.offsets = np.floor(xyz.min(axis=0)) if offset is None else offset
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz.T
-    if classes is not None:
-        las.classification = classes
-    if withheld is not None:
-        las.withheld = withheld
-    las.write(path)
-    return path
-
-
-def _yaw_poses(n: int) -> np.ndarray:
-    """A drive along x turning 2 deg per frame."""
-    p = np.tile(np.eye(4), (n, 1, 1))
-    a = np.radians(2.0) * np.arange(n)
-    p[:, 0, 0], p[:, 0, 1], p[:, 1, 0], p[:, 1, 1] = np.cos(a), -np.sin(a), np.sin(a), np.cos(a)
-    p[:, 0, 3] = 0.8 * np.arange(n)
-    return p
-
-
 def test_mapclass_takes_tum_poses_like_kitti_poses_and_warns_of_extra_poses(tmp_path, caplog):
 
     from data_tools.formats.kitti import KittiSequence
@@ -108,10 +52,10 @@ def test_mapclass_takes_tum_poses_like_kitti_poses_and_warns_of_extra_poses(tmp_
 
     root = make_kitti(tmp_path / "seq", frames=4, labels=False)
     seq = KittiSequence(root)
-    poses = _yaw_poses(4)
+    poses = yaw_poses(4)
     write_kitti_poses(tmp_path / "p.kitti", poses)
     write_tum_poses(tmp_path / "p.tum", np.asarray(seq.times), poses)
-    write_kitti_poses(tmp_path / "more.kitti", _yaw_poses(9))
+    write_kitti_poses(tmp_path / "more.kitti", yaw_poses(9))
     a = map_from_dataset(seq, 4, 1, tmp_path / "p.kitti")
     b = map_from_dataset(seq, 4, 1, tmp_path / "p.tum")
     np.testing.assert_allclose(a.points, b.points, atol=1e-6)
@@ -127,7 +71,7 @@ def test_a_folder_of_las_tiles_given_to_mapclass_says_to_give_one_cloud(tmp_path
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
-    xyz, classes = block_scene(300)
+    xyz, classes = ground_and_wall(300)
     (tmp_path / "tiles").mkdir()
     write_las(tmp_path / "tiles" / "a.las", xyz, classes)
     write_las(tmp_path / "tiles" / "b.las", xyz + 50, classes)
@@ -170,7 +114,7 @@ def test_a_tiles_own_classes_and_instances_are_read_chunk_by_chunk(tmp_path, mon
     the result is that of reading the whole file, over several chunks."""
     import data_tools.formats.clouds as clouds
 
-    xyz, classes = block_scene(900)
+    xyz, classes = ground_and_wall(900)
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.add_extra_dim(laspy.ExtraBytesParams("instance", np.uint32))
     las = laspy.LasData(header)
@@ -194,7 +138,7 @@ def test_sequence_options_given_with_one_cloud_file_are_an_error(tmp_path):
 
     from prc_slam.cli import app
 
-    xyz, classes = block_scene(300)
+    xyz, classes = ground_and_wall(300)
     write_las(tmp_path / "map.las", xyz, classes)
     out = str(tmp_path / "out")
     cases = [

@@ -19,29 +19,8 @@ from typer.testing import CliRunner
 
 from data_tools.formats.pcd import write_pcd
 from prc_slam.cli import app
-from tests.inputs.grids import spinning_grid
-
-
-def flat_fields(grid: np.ndarray) -> dict[str, np.ndarray]:
-    g = grid.reshape(-1, 3)
-    return {"x": g[:, 0], "y": g[:, 1], "z": g[:, 2]}
-
-
-def write_room_sweeps(root: Path, n: int, time_field: dict[str, np.ndarray] | None) -> list[int]:
-    """``n`` unorganised 16-beam sweeps in firing order (no-returns dropped); returns their sizes."""
-    sizes = []
-    for i in range(n):
-        grid = spinning_grid(seed=i)
-        fields = flat_fields(np.swapaxes(grid, 0, 1))  # firing order: all beams of a column together
-        ok = np.isfinite(fields["x"])
-        fields = {k: v[ok] for k, v in fields.items()}
-        if time_field is not None:
-            fields.update(
-                {k: np.swapaxes(np.broadcast_to(v, grid.shape[:2]), 0, 1).ravel()[ok] for k, v in time_field.items()}
-            )
-        write_pcd(root / f"{i:06d}.pcd", fields)
-        sizes.append(int(ok.sum()))
-    return sizes
+from tests.inputs.grids import write_room_sweeps
+from tests.inputs.kitti import kitti_folder
 
 
 def test_failed_odometry_variant_is_warned(caplog):
@@ -81,24 +60,6 @@ def test_odometry_on_pcd_sweeps_with_relative_times_uses_every_frame(tmp_path):
     assert np.isfinite(tum).all()
 
 
-def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
-    """A KITTI layout with sweeps ``NNNNNN.bin`` for ``numbers`` and ``n_lines`` poses (pose k at
-    x = k metres) and times (k x 0.1 s), an identity ``Tr``."""
-    from tests.inputs.grids import spinning_grid
-
-    (root / "velodyne").mkdir(parents=True)
-    for k in numbers:
-        g = spinning_grid(seed=k).reshape(-1, 3)
-        g = g[np.isfinite(g).all(axis=1)]
-        np.column_stack([g, np.zeros(len(g), np.float32)]).astype(np.float32).tofile(root / "velodyne" / f"{k:06d}.bin")
-    poses = np.tile(np.eye(4)[:3].ravel(), (n_lines, 1))
-    poses[:, 3] = np.arange(n_lines)
-    np.savetxt(root / "poses.txt", poses)
-    np.savetxt(root / "times.txt", np.arange(n_lines) * 0.1)
-    (root / "calib.txt").write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
-    return root
-
-
 def test_a_run_too_short_for_the_health_checks_says_so(tmp_path):
     """``compare --stride 5`` on KITTI 00 (four keyframes, fewer than ``warm_up``): report.md, metrics.json and
     the command line say that nothing was checked, rather than calling every variant 'ok'."""
@@ -113,7 +74,7 @@ def test_a_run_too_short_for_the_health_checks_says_so(tmp_path):
     warm_up = GuardConfig().warm_up
     assert unchecked_health_note(warm_up + 1, warm_up) is None and unchecked_health_note(None, warm_up) is None
     assert "only 1 frame:" in unchecked_health_note(1, warm_up)
-    root = _kitti_folder(tmp_path / "seq", [0, 1, 2], 3)
+    root = kitti_folder(tmp_path / "seq", [0, 1, 2], 3)
     res = CliRunner().invoke(app, ["compare", str(root), "--variants", "raw", "--out", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
     assert "only 3 frames: the health checks" in " ".join(res.output.split())
@@ -290,7 +251,6 @@ def test_a_bad_sweep_mid_sequence_is_flagged_at_its_frame(kitti_dir, tmp_path, c
 def test_strided_pcd_sweeps_without_times_keep_their_spacing(kitti_dir, tmp_path):
     """KITTI 00 sweeps as PCDs without times, every 5th: sweep i is timed at i periods (keyframes 0.5 s apart),
     so the TUM files and the guard's speed bound use 0.5 s."""
-    from data_tools.formats.pcd import write_pcd
     from prc_slam.jobs.common import open_input
 
     folder = tmp_path / "pcd"

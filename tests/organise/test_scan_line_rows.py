@@ -16,12 +16,7 @@ from data_tools import DataError
 from data_tools.formats.pcd import SweepFolder, rows_are_scan_lines, write_pcd
 from data_tools.formats.rosbag import cloud_from_records, cloud_to_scan
 from data_tools.organize import Organizer
-from tests.inputs.grids import spinning_grid
-
-
-def flat_fields(grid: np.ndarray) -> dict[str, np.ndarray]:
-    g = grid.reshape(-1, 3)
-    return {"x": g[:, 0], "y": g[:, 1], "z": g[:, 2]}
+from tests.inputs.grids import flat_fields, spinning_grid
 
 
 @settings(max_examples=15, deadline=None)

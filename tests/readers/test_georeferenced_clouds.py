@@ -12,22 +12,7 @@ import numpy as np
 import pytest
 
 from data_tools.formats.pcd import write_pcd
-
-UTM = np.array([512_345.678, 5_412_345.432, 300.0])
-
-
-def block_scene(n: int = 30_000, seed: int = 0) -> np.ndarray:
-    """A 60 m x 60 m ground with a 20 m x 15 m x 8 m block building (roof and four walls)."""
-    rng = np.random.default_rng(seed)
-    ground = np.column_stack([rng.uniform(0, 60, n), rng.uniform(0, 60, n), rng.normal(0, 0.02, n)])
-    ground = ground[~((ground[:, 0] > 20) & (ground[:, 0] < 40) & (ground[:, 1] > 20) & (ground[:, 1] < 35))]
-    m = n // 4
-    roof = np.column_stack([rng.uniform(20, 40, m), rng.uniform(20, 35, m), 8 + rng.normal(0, 0.02, m)])
-    walls = []
-    for x0, x1, y0, y1 in ((20, 40, 20, 20), (20, 40, 35, 35), (20, 20, 20, 35), (40, 40, 20, 35)):
-        t, h = rng.uniform(0, 1, m // 2), rng.uniform(0, 8, m // 2)
-        walls.append(np.column_stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0), h]))
-    return np.concatenate([ground, roof, *walls])
+from tests.inputs.clouds import UTM, block_building
 
 
 def write_las(path: Path, xyz: np.ndarray, scale: float = 0.001) -> Path:
@@ -50,7 +35,7 @@ def test_utm_las_with_a_millimetre_scale_keeps_its_geometry_and_labels(tmp_path)
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
-    xyz = np.round(block_scene(), 3)
+    xyz = np.round(block_building(), 3)
     results = {}
     for name, shift in (("origin", np.zeros(3)), ("utm", UTM)):
         path = write_las(tmp_path / f"{name}.las", xyz + shift)
@@ -88,7 +73,7 @@ def test_float32_utm_coordinates_are_warned(tmp_path, caplog, suffix, writer):
     """float32 northings of 5.4e6 keep one value per 0.5 m: the reader warns before the cloud is classified."""
     from data_tools.formats.clouds import cloud_chunks
 
-    xyz = block_scene(3000) + UTM
+    xyz = block_building(3000) + UTM
     path = writer(tmp_path / f"utm32{suffix}", xyz.astype(np.float32))
     with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
         got = np.concatenate(list(cloud_chunks(path)))
@@ -102,7 +87,7 @@ def test_float32_utm_coordinates_are_warned(tmp_path, caplog, suffix, writer):
 def test_fine_enough_coordinates_are_not_warned(tmp_path, caplog, case):
     from data_tools.formats.clouds import cloud_chunks
 
-    xyz = block_scene(3000)
+    xyz = block_building(3000)
     if case == "float64 at UTM":
         xyz = xyz + UTM
     else:
@@ -135,7 +120,7 @@ def test_the_classified_clouds_keep_the_input_crs(tmp_path, suffix):
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
-    xyz = np.round(block_scene(6000), 3) + UTM
+    xyz = np.round(block_building(6000), 3) + UTM
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales, header.offsets = np.array([0.001] * 3), np.floor(xyz.min(axis=0))
     header.vlrs.append(WktCoordinateSystemVlr(UTM32N_WKT))

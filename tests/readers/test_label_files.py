@@ -10,23 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-
-def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
-    """A KITTI layout with sweeps ``NNNNNN.bin`` for ``numbers`` and ``n_lines`` poses (pose k at
-    x = k metres) and times (k x 0.1 s), an identity ``Tr``."""
-    from tests.inputs.grids import spinning_grid
-
-    (root / "velodyne").mkdir(parents=True)
-    for k in numbers:
-        g = spinning_grid(seed=k).reshape(-1, 3)
-        g = g[np.isfinite(g).all(axis=1)]
-        np.column_stack([g, np.zeros(len(g), np.float32)]).astype(np.float32).tofile(root / "velodyne" / f"{k:06d}.bin")
-    poses = np.tile(np.eye(4)[:3].ravel(), (n_lines, 1))
-    poses[:, 3] = np.arange(n_lines)
-    np.savetxt(root / "poses.txt", poses)
-    np.savetxt(root / "times.txt", np.arange(n_lines) * 0.1)
-    (root / "calib.txt").write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
-    return root
+from tests.inputs.kitti import kitti_folder
 
 
 def _with_labels(root: Path, bad: np.ndarray | None) -> None:
@@ -55,7 +39,7 @@ def test_a_label_file_that_does_not_fit_leaves_its_frame_classified(tmp_path, ba
 
     from prc_slam.cli import app
 
-    root = _kitti_folder(tmp_path / "seq", [0, 1, 2], 3)
+    root = kitti_folder(tmp_path / "seq", [0, 1, 2], 3)
     _with_labels(root, bad)
     res = CliRunner().invoke(app, ["classify", str(root), "--labels-out", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
@@ -70,7 +54,7 @@ def test_a_label_file_that_does_not_fit_leaves_its_frame_classified(tmp_path, ba
 def test_label_files_that_are_not_semantic_kitti_are_warned(tmp_path, caplog):
     from data_tools.formats.kitti import KittiSequence
 
-    root = _kitti_folder(tmp_path / "seq", [0, 1, 2], 3)
+    root = kitti_folder(tmp_path / "seq", [0, 1, 2], 3)
     _with_labels(root, lambda n: np.random.default_rng(0).integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32))
     seq = KittiSequence(root)
     with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):

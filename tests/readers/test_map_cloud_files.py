@@ -9,40 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.inputs.las import ground_and_wall, write_las
+
 laspy = pytest.importorskip("laspy")
-
-
-def block_scene(n: int = 6000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """A 40 m x 40 m ground (ASPRS 2) with a 20 m wall 8 m high (ASPRS 6): points, classes."""
-    rng = np.random.default_rng(seed)
-    ground = np.column_stack([rng.uniform(0, 40, n), rng.uniform(0, 40, n), rng.normal(0, 0.02, n)])
-    m = n // 3
-    wall = np.column_stack([rng.uniform(10, 30, m), np.full(m, 30.0) + rng.normal(0, 0.02, m), rng.uniform(0, 8, m)])
-    return np.concatenate([ground, wall]), np.concatenate([np.full(n, 2), np.full(m, 6)]).astype(np.uint8)
-
-
-def write_las(
-    path: Path,
-    xyz: np.ndarray,
-    classes: np.ndarray | None = None,
-    *,
-    scale: float = 0.001,
-    offset: np.ndarray | None = None,
-    point_format: int = 6,
-    withheld: np.ndarray | None = None,
-) -> Path:
-    version = "1.4" if point_format >= 6 else "1.2"
-    header = laspy.LasHeader(point_format=point_format, version=version)
-    header.scales = np.array([scale] * 3)
-    header.offsets = np.floor(xyz.min(axis=0)) if offset is None else offset
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz.T
-    if classes is not None:
-        las.classification = classes
-    if withheld is not None:
-        las.withheld = withheld
-    las.write(path)
-    return path
 
 
 @pytest.mark.parametrize(
@@ -74,7 +43,7 @@ def test_points_without_coordinates_are_counted_as_not_written(tmp_path):
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
-    xyz, _ = block_scene(1500)
+    xyz, _ = ground_and_wall(1500)
     holes = np.arange(len(xyz)) % 4 == 0
     xyz[holes] = np.nan
     np.save(tmp_path / "holes.npy", xyz)
@@ -122,7 +91,7 @@ def test_ply_map_clouds_are_read_exactly_and_cut_ones_are_errors(tmp_path, fmt):
     from data_tools.errors import DataError
     from data_tools.formats.clouds import cloud_chunks
 
-    xyz, _ = block_scene(400)
+    xyz, _ = ground_and_wall(400)
     xyz = xyz.astype(np.float32).astype(np.float64)
     path = _ply(tmp_path / "map.ply", xyz, fmt)
     np.testing.assert_array_equal(np.concatenate(list(cloud_chunks(path))), xyz)
@@ -156,7 +125,7 @@ def test_las_records_beyond_the_header_count_are_an_error(tmp_path):
     from prc_slam.config import Config
     from prc_slam.jobs.mapclass import mapclass_job
 
-    xyz, classes = block_scene(2400)
+    xyz, classes = ground_and_wall(2400)
     full = write_las(tmp_path / "full.las", xyz, classes)
     assert cloud_size(full) == len(xyz)  # a correct file passes the check
     short = tmp_path / "short.las"

@@ -7,14 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-
-def block_scene(n: int = 6000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """A 40 m x 40 m ground (ASPRS 2) with a 20 m wall 8 m high (ASPRS 6): points, classes."""
-    rng = np.random.default_rng(seed)
-    ground = np.column_stack([rng.uniform(0, 40, n), rng.uniform(0, 40, n), rng.normal(0, 0.02, n)])
-    m = n // 3
-    wall = np.column_stack([rng.uniform(10, 30, m), np.full(m, 30.0) + rng.normal(0, 0.02, m), rng.uniform(0, 8, m)])
-    return np.concatenate([ground, wall]), np.concatenate([np.full(n, 2), np.full(m, 6)]).astype(np.uint8)
+from tests.inputs.las import ground_and_wall
 
 
 def _numpy_variants(xyz: np.ndarray) -> dict[str, object]:
@@ -37,7 +30,7 @@ def test_numpy_clouds_with_more_columns_fields_or_in_an_npz_are_read(tmp_path, n
     read as clouds (the npz is not taken for an Ouster sweep)."""
     from data_tools.formats.clouds import cloud_chunks, cloud_size, is_cloud_file
 
-    xyz, _ = block_scene(500)
+    xyz, _ = ground_and_wall(500)
     value = _numpy_variants(xyz)[name]
     path = tmp_path / name
     if isinstance(value, dict):

@@ -11,45 +11,7 @@ import numpy as np
 import pytest
 
 from data_tools import DataError, open_dataset
-
-
-def eth_udp(payload: bytes, port: int, src: tuple[int, int, int, int] = (192, 168, 1, 201), proto: int = 17) -> bytes:
-    """An Ethernet / IPv4 frame around a UDP datagram (or around ``payload`` as is for another protocol)."""
-    body = struct.pack(">HHHH", port, port, 8 + len(payload), 0) + payload if proto == 17 else payload
-    ip = struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + len(body), 0, 0, 64, proto, 0, bytes(src), b"\xff" * 4) + body
-    return b"\xff" * 6 + b"\x60\x76\x88\x00\x00\x01" + b"\x08\x00" + ip
-
-
-def write_pcap(
-    path: Path, frames: list[tuple[float, bytes]], *, nano: bool = False, big: bool = False, link: int = 1
-) -> Path:
-    """Classic libpcap, micro- or nanosecond stamps, either byte order (``link``: the frames' link type)."""
-    e = ">" if big else "<"
-    with path.open("wb") as f:
-        f.write(struct.pack(e + "IHHiIII", 0xA1B23C4D if nano else 0xA1B2C3D4, 2, 4, 0, 0, 65535, link))
-        for s, eth in frames:
-            frac = round(s % 1 * (1e9 if nano else 1e6))
-            f.write(struct.pack(e + "IIII", int(s), frac, len(eth), len(eth)) + eth)
-    return path
-
-
-def write_pcapng(path: Path, frames: list[tuple[float, bytes]], *, tsresol: int | None = None) -> Path:
-    """pcapng: section header, one Ethernet interface (``if_tsresol`` 10^-tsresol s when given),
-    one enhanced packet block per frame."""
-
-    def block(btype: int, body: bytes) -> bytes:
-        body += b"\x00" * (-len(body) % 4)
-        return struct.pack("<II", btype, 12 + len(body)) + body + struct.pack("<I", 12 + len(body))
-
-    unit = 10.0 ** -(tsresol or 6)
-    options = b"" if tsresol is None else struct.pack("<HHB3x", 9, 1, tsresol) + struct.pack("<HH", 0, 0)
-    with path.open("wb") as f:
-        f.write(block(0x0A0D0D0A, struct.pack("<IHHq", 0x1A2B3C4D, 1, 0, -1)))
-        f.write(block(1, struct.pack("<HHI", 1, 0, 65535) + options))
-        for s, eth in frames:
-            ts = round(s / unit)
-            f.write(block(6, struct.pack("<IIIII", 0, ts >> 32, ts & 0xFFFFFFFF, len(eth), len(eth)) + eth))
-    return path
+from tests.inputs.captures import eth_udp, write_frames_pcap, write_pcapng
 
 
 def pcap_records(path: Path) -> tuple[int, list[tuple[float, bytes]]]:
@@ -87,7 +49,7 @@ def test_ouster_capture_on_another_port_names_the_ports(ouster_capture, tmp_path
     capture's ports and packet sizes."""
     pcap, meta = ouster_capture
     _, recs = pcap_records(pcap)
-    path = write_pcap(tmp_path / "moved.pcap", [(s, with_ports(f, 7777)) for s, f in recs])
+    path = write_frames_pcap(tmp_path / "moved.pcap", [(s, with_ports(f, 7777)) for s, f in recs])
     with pytest.raises(DataError) as exc:
         open_dataset(path, "ouster-pcap", meta=meta)
     msg = str(exc.value)
@@ -103,7 +65,7 @@ def test_ouster_capture_with_other_traffic_and_as_pcapng_reads_the_same_sweeps(o
     rng = np.random.default_rng(1)
     junk = [(s + 1e-6, eth_udp(rng.bytes(8448), 7600)) for s, _ in recs[::3]]
     mirrored = [(s + 2e-6, with_ports(f, 7777)) for s, f in recs]
-    busy = write_pcap(tmp_path / "busy.pcap", sorted(recs + junk + mirrored, key=lambda x: x[0]))
+    busy = write_frames_pcap(tmp_path / "busy.pcap", sorted(recs + junk + mirrored, key=lambda x: x[0]))
     ng = write_pcapng(tmp_path / "ng.pcapng", recs)
     for path in (busy, ng):
         ds = open_dataset(path, "ouster-pcap", meta=meta)
@@ -111,9 +73,3 @@ def test_ouster_capture_with_other_traffic_and_as_pcapng_reads_the_same_sweeps(o
         np.testing.assert_array_equal(ds.frame_ids, ref.frame_ids)
         for i in range(len(ref)):
             np.testing.assert_array_equal(ds[i].ranges, ref[i].ranges)
-
-
-VELODYNE_LAYOUT = [("x", "f4", 0), ("y", "f4", 4), ("z", "f4", 8), ("intensity", "f4", 12), ("ring", "u2", 16)]
-
-
-VELODYNE_LAYOUT += [("time", "f4", 18)]

@@ -15,13 +15,7 @@ import pytest
 from data_tools import DataError, open_dataset
 from tests.conftest import SHARED_DATA
 from tests.inputs.velodyne import write_pcap
-
-
-def one_line(exc: pytest.ExceptionInfo, path: Path) -> str:
-    msg = str(exc.value)
-    assert "\n" not in msg and str(path) in msg, msg
-    return msg
-
+from tests.messages import one_line
 
 OUSTER_JSON = SHARED_DATA / "ouster" / "pcaps" / "OS-1-128_v2.3.0_1024x10.json"
 

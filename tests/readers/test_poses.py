@@ -3,27 +3,10 @@
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import numpy as np
 
-
-def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
-    """A KITTI layout with sweeps ``NNNNNN.bin`` for ``numbers`` and ``n_lines`` poses (pose k at
-    x = k metres) and times (k x 0.1 s), an identity ``Tr``."""
-    from tests.inputs.grids import spinning_grid
-
-    (root / "velodyne").mkdir(parents=True)
-    for k in numbers:
-        g = spinning_grid(seed=k).reshape(-1, 3)
-        g = g[np.isfinite(g).all(axis=1)]
-        np.column_stack([g, np.zeros(len(g), np.float32)]).astype(np.float32).tofile(root / "velodyne" / f"{k:06d}.bin")
-    poses = np.tile(np.eye(4)[:3].ravel(), (n_lines, 1))
-    poses[:, 3] = np.arange(n_lines)
-    np.savetxt(root / "poses.txt", poses)
-    np.savetxt(root / "times.txt", np.arange(n_lines) * 0.1)
-    (root / "calib.txt").write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
-    return root
+from tests.inputs.kitti import kitti_folder
 
 
 def test_poses_whose_z_is_not_up_are_warned(tmp_path, caplog):
@@ -44,7 +27,7 @@ def test_poses_whose_z_is_not_up_are_warned(tmp_path, caplog):
         assert not warn_unless_z_up(poses(0, 0.0), "still.txt")
     assert [r.getMessage().split(":")[0] for r in caplog.records] == ["camera.txt"]
     caplog.clear()
-    root = _kitti_folder(tmp_path / "seq", [0, 1, 2, 3], 4)
+    root = kitti_folder(tmp_path / "seq", [0, 1, 2, 3], 4)
     np.savetxt(tmp_path / "cam.txt", poses(2, 0.86, 4)[:, :3, :].reshape(4, 12))
     with caplog.at_level(logging.WARNING, logger="prc_slam.mapclass"):
         map_from_dataset(KittiSequence(root), 4, 1, tmp_path / "cam.txt")

@@ -9,7 +9,6 @@ import gc
 import logging
 import shutil
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,12 +16,7 @@ import pytest
 from data_tools import DataError, open_dataset
 from data_tools.formats.rosbag import RosbagSequence, cloud_from_records
 from tests.inputs.rosbags import COLS, EPOCH, ROWS, VELODYNE, room_sweep, ros2_sweeps, write_ros2
-
-
-def one_line(exc: pytest.ExceptionInfo, path: Path) -> str:
-    msg = str(exc.value)
-    assert "\n" not in msg and str(path) in msg, msg
-    return msg
+from tests.messages import one_line
 
 
 def assert_sweep_read(scan, rec: np.ndarray) -> None:

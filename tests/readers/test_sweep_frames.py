@@ -9,8 +9,7 @@ import logging
 import numpy as np
 
 from data_tools.formats.pcd import write_pcd
-
-UTM = np.array([512_345.678, 5_412_345.432, 300.0])
+from tests.inputs.clouds import UTM
 
 
 def test_sweeps_in_a_world_frame_are_told_apart_from_millimetres(tmp_path, caplog):

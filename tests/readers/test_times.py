@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import itertools
 import logging
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,12 +14,9 @@ import pytest
 from data_tools.formats.pcd import SweepFolder, sweep_relative, write_pcd
 from data_tools.formats.rosbag import cloud_from_records, cloud_to_scan
 from data_tools.organize import Organizer
-from tests.inputs.grids import spinning_grid
-
-
-def flat_fields(grid: np.ndarray) -> dict[str, np.ndarray]:
-    g = grid.reshape(-1, 3)
-    return {"x": g[:, 0], "y": g[:, 1], "z": g[:, 2]}
+from tests.inputs.grids import spinning_grid, write_room_sweeps
+from tests.inputs.kitti import kitti_folder
+from tests.inputs.pointcloud2 import EPOCH_NS, VELODYNE_LAYOUT, vlp16_records
 
 
 def test_sweep_relative_hand_cases():
@@ -30,23 +26,6 @@ def test_sweep_relative_hand_cases():
     assert not sweep_relative(np.array([0.1, 0.15, 0.2]))  # sweep 1 on a clock shared by the sweeps
     assert not sweep_relative(np.array([1.7e9, 1.7e9 + 0.1]))  # epoch seconds
     assert not sweep_relative(np.array([np.nan, np.nan]))
-
-
-def write_room_sweeps(root: Path, n: int, time_field: dict[str, np.ndarray] | None) -> list[int]:
-    """``n`` unorganised 16-beam sweeps in firing order (no-returns dropped); returns their sizes."""
-    sizes = []
-    for i in range(n):
-        grid = spinning_grid(seed=i)
-        fields = flat_fields(np.swapaxes(grid, 0, 1))  # firing order: all beams of a column together
-        ok = np.isfinite(fields["x"])
-        fields = {k: v[ok] for k, v in fields.items()}
-        if time_field is not None:
-            fields.update(
-                {k: np.swapaxes(np.broadcast_to(v, grid.shape[:2]), 0, 1).ravel()[ok] for k, v in time_field.items()}
-            )
-        write_pcd(root / f"{i:06d}.pcd", fields)
-        sizes.append(int(ok.sum()))
-    return sizes
 
 
 @pytest.mark.parametrize(
@@ -186,24 +165,6 @@ def test_recording_whose_header_stamps_repeat_is_warned_on_opening(tmp_path, cap
     assert len(lines) == 1 and "1 of 3 header stamps" in lines[0] and "message 2" in lines[0]
 
 
-def _kitti_folder(root: Path, numbers: list[int], n_lines: int) -> Path:
-    """A KITTI layout with sweeps ``NNNNNN.bin`` for ``numbers`` and ``n_lines`` poses (pose k at
-    x = k metres) and times (k x 0.1 s), an identity ``Tr``."""
-    from tests.inputs.grids import spinning_grid
-
-    (root / "velodyne").mkdir(parents=True)
-    for k in numbers:
-        g = spinning_grid(seed=k).reshape(-1, 3)
-        g = g[np.isfinite(g).all(axis=1)]
-        np.column_stack([g, np.zeros(len(g), np.float32)]).astype(np.float32).tofile(root / "velodyne" / f"{k:06d}.bin")
-    poses = np.tile(np.eye(4)[:3].ravel(), (n_lines, 1))
-    poses[:, 3] = np.arange(n_lines)
-    np.savetxt(root / "poses.txt", poses)
-    np.savetxt(root / "times.txt", np.arange(n_lines) * 0.1)
-    (root / "calib.txt").write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
-    return root
-
-
 def test_a_gap_in_the_frame_times_is_warned(tmp_path, caplog):
     """Sweeps 0-3 and 10-15 of KITTI 00 with their ``times.txt`` (0.7 s missing) are warned of the gap."""
     from data_tools.formats.kitti import KittiSequence
@@ -217,7 +178,7 @@ def test_a_gap_in_the_frame_times_is_warned(tmp_path, caplog):
     assert [r.getMessage().split(":")[0] for r in caplog.records] == ["gap"]
     assert "5 s between frames 3 and 4 (50.0 x the median step of 0.1 s)" in caplog.records[0].getMessage()
     caplog.clear()
-    root = _kitti_folder(tmp_path / "seq", [0, 1, 2, 3, 10, 11, 12], 16)
+    root = kitti_folder(tmp_path / "seq", [0, 1, 2, 3, 10, 11, 12], 16)
     with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
         seq = KittiSequence(root)
     assert "times.txt: 1 gap in the frame times, the largest 0.7 s between frames 3 and 4" in caplog.text
@@ -231,41 +192,6 @@ def test_a_gap_in_the_frame_times_is_warned(tmp_path, caplog):
     with caplog.at_level(logging.WARNING, logger="prc_slam.readers"):
         SweepFolder(folder)
     assert "times.txt: 1 gap in the frame times, the largest 1.7 s" in caplog.text
-
-
-EPOCH_NS = 1_700_000_000 * 10**9
-
-
-def vlp16_records(layout: list[tuple[str, str, int]], itemsize: int, *, big: bool = False) -> np.ndarray:
-    """The real VLP-16 sweep (``multisensor/velodyne_vlp16.pcd``) in a PointCloud2 point layout
-    ``(name, numpy type, offset)``: ring from its ``channel``, time (s) from the azimuth."""
-    from data_tools.formats.pcd import read_pcd
-    from tests.conftest import SHARED_DATA
-
-    path = SHARED_DATA / "multisensor" / "velodyne_vlp16.pcd"
-    if not path.is_file():
-        pytest.skip(f"real VLP-16 sweep not found: {path}")
-    f, _ = read_pcd(path)
-    f = {**f, "ring": f["channel"], "time": (np.arctan2(f["y"], f["x"]) % (2 * np.pi)) / (2 * np.pi) * 0.1 - 0.1}
-    o = ">" if big else "<"
-    dt = np.dtype(
-        {
-            "names": [n for n, _, _ in layout],
-            "formats": [o + t for _, t, _ in layout],
-            "offsets": [k for _, _, k in layout],
-            "itemsize": itemsize,
-        }
-    )
-    rec = np.zeros(len(f["x"]), dt)
-    for name, _, _ in layout:
-        rec[name] = f[name]
-    return rec
-
-
-VELODYNE_LAYOUT = [("x", "f4", 0), ("y", "f4", 4), ("z", "f4", 8), ("intensity", "f4", 12), ("ring", "u2", 16)]
-
-
-VELODYNE_LAYOUT += [("time", "f4", 18)]
 
 
 def test_a_recording_whose_header_stamps_are_unset_is_timed_by_its_log_times(tmp_path, caplog):

@@ -5,14 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-
-def _yaw_poses(n: int) -> np.ndarray:
-    """A drive along x turning 2 deg per frame."""
-    p = np.tile(np.eye(4), (n, 1, 1))
-    a = np.radians(2.0) * np.arange(n)
-    p[:, 0, 0], p[:, 0, 1], p[:, 1, 0], p[:, 1, 1] = np.cos(a), -np.sin(a), np.sin(a), np.cos(a)
-    p[:, 0, 3] = 0.8 * np.arange(n)
-    return p
+from tests.inputs.poses import yaw_poses
 
 
 def test_tum_poses_are_matched_to_the_frames_by_time(tmp_path, caplog):
@@ -23,7 +16,7 @@ def test_tum_poses_are_matched_to_the_frames_by_time(tmp_path, caplog):
 
     from data_tools.formats.trajectory_io import read_pose_file, write_kitti_poses, write_tum_poses
 
-    truth = _yaw_poses(8)
+    truth = yaw_poses(8)
     times = 0.1 * np.arange(8) + 0.003
     write_kitti_poses(tmp_path / "p.kitti", truth)
     write_tum_poses(tmp_path / "p.tum", times, truth)
@@ -45,7 +38,7 @@ def test_pose_files_that_cannot_place_the_frames_are_one_line_errors(tmp_path, c
     from data_tools.errors import DataError
     from data_tools.formats.trajectory_io import read_pose_file, write_kitti_poses, write_tum_poses
 
-    truth = _yaw_poses(6)
+    truth = yaw_poses(6)
     times = 0.1 * np.arange(6)
     write_tum_poses(tmp_path / "few.tum", times[:3] + 50.0, truth[:3])  # 3 poses, another clock
     scaled = truth.copy()

@@ -11,12 +11,7 @@ import pytest
 
 from data_tools import DataError
 from data_tools.formats.pcd import SweepFolder, write_pcd
-from tests.inputs.grids import spinning_grid
-
-
-def flat_fields(grid: np.ndarray) -> dict[str, np.ndarray]:
-    g = grid.reshape(-1, 3)
-    return {"x": g[:, 0], "y": g[:, 1], "z": g[:, 2]}
+from tests.inputs.grids import flat_fields, spinning_grid
 
 
 def test_ouster_npz_with_ranges_in_metres_is_refused(ouster_files, tmp_path):

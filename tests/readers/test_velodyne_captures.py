@@ -7,54 +7,15 @@ from __future__ import annotations
 
 import logging
 import struct
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from data_tools import DataError, open_dataset
 from data_tools.datasets import detect_format
+from tests.inputs.captures import eth_udp, write_frames_pcap, write_pcapng
 from tests.inputs.rosbags import velodyne_scan_bag
 from tests.inputs.velodyne import vlp16_stream
-
-
-def eth_udp(payload: bytes, port: int, src: tuple[int, int, int, int] = (192, 168, 1, 201), proto: int = 17) -> bytes:
-    """An Ethernet / IPv4 frame around a UDP datagram (or around ``payload`` as is for another protocol)."""
-    body = struct.pack(">HHHH", port, port, 8 + len(payload), 0) + payload if proto == 17 else payload
-    ip = struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + len(body), 0, 0, 64, proto, 0, bytes(src), b"\xff" * 4) + body
-    return b"\xff" * 6 + b"\x60\x76\x88\x00\x00\x01" + b"\x08\x00" + ip
-
-
-def write_pcap(
-    path: Path, frames: list[tuple[float, bytes]], *, nano: bool = False, big: bool = False, link: int = 1
-) -> Path:
-    """Classic libpcap, micro- or nanosecond stamps, either byte order (``link``: the frames' link type)."""
-    e = ">" if big else "<"
-    with path.open("wb") as f:
-        f.write(struct.pack(e + "IHHiIII", 0xA1B23C4D if nano else 0xA1B2C3D4, 2, 4, 0, 0, 65535, link))
-        for s, eth in frames:
-            frac = round(s % 1 * (1e9 if nano else 1e6))
-            f.write(struct.pack(e + "IIII", int(s), frac, len(eth), len(eth)) + eth)
-    return path
-
-
-def write_pcapng(path: Path, frames: list[tuple[float, bytes]], *, tsresol: int | None = None) -> Path:
-    """pcapng: section header, one Ethernet interface (``if_tsresol`` 10^-tsresol s when given),
-    one enhanced packet block per frame."""
-
-    def block(btype: int, body: bytes) -> bytes:
-        body += b"\x00" * (-len(body) % 4)
-        return struct.pack("<II", btype, 12 + len(body)) + body + struct.pack("<I", 12 + len(body))
-
-    unit = 10.0 ** -(tsresol or 6)
-    options = b"" if tsresol is None else struct.pack("<HHB3x", 9, 1, tsresol) + struct.pack("<HH", 0, 0)
-    with path.open("wb") as f:
-        f.write(block(0x0A0D0D0A, struct.pack("<IHHq", 0x1A2B3C4D, 1, 0, -1)))
-        f.write(block(1, struct.pack("<HHI", 1, 0, 65535) + options))
-        for s, eth in frames:
-            ts = round(s / unit)
-            f.write(block(6, struct.pack("<IIIII", 0, ts >> 32, ts & 0xFFFFFFFF, len(eth), len(eth)) + eth))
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +28,7 @@ def vlp16_frames() -> list[tuple[float, bytes]]:
 @pytest.fixture(scope="module")
 def reference(vlp16_frames, tmp_path_factory) -> tuple[np.ndarray, list[np.ndarray]]:
     """Sweep stamps and points of the plain capture."""
-    ds = open_dataset(write_pcap(tmp_path_factory.mktemp("ref") / "ref.pcap", vlp16_frames))
+    ds = open_dataset(write_frames_pcap(tmp_path_factory.mktemp("ref") / "ref.pcap", vlp16_frames))
     return ds.times, [ds.sweep(i)[1] for i in range(len(ds))]
 
 
@@ -99,7 +60,7 @@ def test_capture_file_formats_decode_the_same_sweeps(case, vlp16_frames, referen
         suffix = ".pcap" if case == "pcapng_named_pcap" else ".pcapng"
         path = write_pcapng(tmp_path / f"v{suffix}", vlp16_frames, tsresol=9 if case == "pcapng_ns" else None)
     else:
-        path = write_pcap(tmp_path / "v.pcap", vlp16_frames, nano=case == "nano", big=case == "bigendian")
+        path = write_frames_pcap(tmp_path / "v.pcap", vlp16_frames, nano=case == "nano", big=case == "bigendian")
     assert detect_format(path) == "velodyne-pcap"
     same_sweeps(open_dataset(path), reference)
 
@@ -120,7 +81,7 @@ def test_captures_of_other_link_types_decode_the_same_sweeps(link, vlp16_frames,
     """``tcpdump -i any`` writes Linux cooked frames (v2 on current libpcap); VLAN-tagged Ethernet and raw IP
     captures decode the same sweeps as Ethernet ones."""
     code, header = LINK_HEADERS[link]
-    path = write_pcap(tmp_path / "v.pcap", [(s, header + eth[14:]) for s, eth in vlp16_frames], link=code)
+    path = write_frames_pcap(tmp_path / "v.pcap", [(s, header + eth[14:]) for s, eth in vlp16_frames], link=code)
     same_sweeps(open_dataset(path), reference)
 
 
@@ -135,7 +96,7 @@ def test_other_traffic_is_skipped(vlp16_frames, reference, tmp_path):
     other += [(s + 3e-5, eth_udp(b"\x00" * 40, 0, proto=6)) for s, _ in vlp16_frames[::5]]
     arp = b"\xff" * 6 + b"\x60\x76\x88\x00\x00\x02\x08\x06" + b"\x00" * 28
     other += [(s + 4e-5, arp) for s, _ in vlp16_frames[::7]]
-    path = write_pcap(tmp_path / "busy.pcap", sorted(vlp16_frames + other, key=lambda x: x[0]))
+    path = write_frames_pcap(tmp_path / "busy.pcap", sorted(vlp16_frames + other, key=lambda x: x[0]))
     assert detect_format(path) == "velodyne-pcap"
     same_sweeps(open_dataset(path), reference)
 
@@ -143,7 +104,7 @@ def test_other_traffic_is_skipped(vlp16_frames, reference, tmp_path):
 def test_two_velodyne_sensors_in_one_capture_are_an_error_naming_both(vlp16_frames, tmp_path):
     payloads, stamps, _ = vlp16_stream(n_sweeps=2.3, seed=5)
     second = [(s + 2e-5, eth_udp(p, 2369, src=(192, 168, 1, 202))) for p, s in zip(payloads, stamps, strict=True)]
-    path = write_pcap(tmp_path / "two.pcap", sorted(vlp16_frames + second, key=lambda x: x[0]))
+    path = write_frames_pcap(tmp_path / "two.pcap", sorted(vlp16_frames + second, key=lambda x: x[0]))
     with pytest.raises(DataError) as exc:
         open_dataset(path)
     msg = str(exc.value)
@@ -153,7 +114,7 @@ def test_two_velodyne_sensors_in_one_capture_are_an_error_naming_both(vlp16_fram
 
 def test_a_few_stray_packets_of_another_sensor_are_dropped_with_a_warning(vlp16_frames, reference, tmp_path, caplog):
     stray = [(s + 2e-5, eth_udp(eth[42:], 2368, src=(10, 0, 0, 9))) for s, eth in vlp16_frames[:3]]  # 42: headers
-    path = write_pcap(tmp_path / "stray.pcap", sorted(vlp16_frames + stray, key=lambda x: x[0]))
+    path = write_frames_pcap(tmp_path / "stray.pcap", sorted(vlp16_frames + stray, key=lambda x: x[0]))
     with caplog.at_level(logging.WARNING):
         ds = open_dataset(path)
     assert any("3 Velodyne data packets from other sources" in r.getMessage() for r in caplog.records)
@@ -162,7 +123,7 @@ def test_a_few_stray_packets_of_another_sensor_are_dropped_with_a_warning(vlp16_
 
 @pytest.mark.parametrize("cut", [500, 1206 + 42 + 8], ids=["inside_data", "inside_record_header"])
 def test_a_truncated_capture_keeps_the_sweeps_before_the_cut(cut, vlp16_frames, reference, tmp_path, caplog):
-    full = write_pcap(tmp_path / "full.pcap", vlp16_frames)
+    full = write_frames_pcap(tmp_path / "full.pcap", vlp16_frames)
     path = tmp_path / "cut.pcap"
     path.write_bytes(full.read_bytes()[:-cut])
     with caplog.at_level(logging.WARNING):
@@ -179,7 +140,7 @@ def test_a_capture_without_velodyne_packets_is_a_one_line_error(tmp_path):
     pytest.importorskip("velodyne_decoder", reason="velodyne-decoder is not installed")
     from data_tools.formats.velodyne_pcap import VelodynePcapSequence
 
-    path = write_pcap(tmp_path / "gps.pcap", [(1e9 + k, eth_udp(gprmc_packet(k), 8308)) for k in range(5)])
+    path = write_frames_pcap(tmp_path / "gps.pcap", [(1e9 + k, eth_udp(gprmc_packet(k), 8308)) for k in range(5)])
     with pytest.raises(DataError, match="no Velodyne data packets") as exc:
         VelodynePcapSequence(path)
     assert "\n" not in str(exc.value) and str(path) in str(exc.value)
@@ -197,12 +158,6 @@ def test_an_empty_or_foreign_pcap_says_so(tmp_path, content, message):
     with pytest.raises(DataError, match=message) as exc:
         open_dataset(path)
     assert "Ouster" not in str(exc.value) and str(path) in str(exc.value)
-
-
-VELODYNE_LAYOUT = [("x", "f4", 0), ("y", "f4", 4), ("z", "f4", 8), ("intensity", "f4", 12), ("ring", "u2", 16)]
-
-
-VELODYNE_LAYOUT += [("time", "f4", 18)]
 
 
 @pytest.mark.parametrize("kind", ["ros1", "ros2"])

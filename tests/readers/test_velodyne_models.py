@@ -5,45 +5,13 @@ from the packets' bytes; a model named other than the packets' factory byte is a
 from __future__ import annotations
 
 import struct
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from data_tools import DataError, open_dataset
-from tests.inputs.velodyne import vlp16_stream, write_pcap
-
-
-def one_line(exc: pytest.ExceptionInfo, path: Path) -> str:
-    msg = str(exc.value)
-    assert "\n" not in msg and str(path) in msg, msg
-    return msg
-
-
-FIRING_32 = 55.296e-6  # s per firing of the 32-laser models (one block)
-
-
-def velodyne32_stream(factory: int, *, dual: bool = False, n_sweeps: float = 1.3, unit: float = 0.004):
-    """Data packets of a 32-laser Velodyne (one firing per block; ``dual``: blocks in pairs, last
-    return then strongest, the last 2 m behind on every third laser) in a round room."""
-    deg_per_s = 3600.0
-    firings = int(n_sweeps * 0.1 / FIRING_32) // 12 * 12
-    per_packet = 6 if dual else 12
-    payloads, stamps = [], []
-    for p0 in range(0, firings, per_packet):
-        buf = bytearray()
-        for j in range(p0, p0 + per_packet):
-            az = (j * FIRING_32 * deg_per_s + 10.0) % 360.0
-            r = 10.0 + 2.0 * np.sin(np.radians(az) * 3)
-            for last in (True, False) if dual else (False,):
-                buf += b"\xff\xee" + struct.pack("<H", round(az * 100) % 36000)
-                for k in range(32):
-                    rk = r + 2.0 if last and k % 3 == 0 else r
-                    buf += struct.pack("<HB", int(rk / unit), 50 if last else 100)
-        buf += struct.pack("<IBB", int(p0 * FIRING_32 * 1e6), 0x39 if dual else 0x37, factory)
-        payloads.append(bytes(buf))
-        stamps.append(1.0e9 + p0 * FIRING_32)
-    return payloads, stamps
+from tests.inputs.velodyne import velodyne32_stream, vlp16_stream, write_pcap
+from tests.messages import one_line
 
 
 def vls128_stream(n_sweeps: float = 1.2):
