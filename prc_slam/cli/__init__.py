@@ -33,8 +33,11 @@ def _options(
     setup_logging(log_file, quiet)
 
 
-for _module in (classify, compare, filter_cmd, mapclass, simulate, bench, demo, batch, live, replay):
-    _module.register(app)
+for _command in (classify.classify, classify.detect, compare.compare, compare.odometry, compare.view):
+    app.command()(_command)
+app.command(name="filter")(filter_cmd.filter_stream)
+for _command in (mapclass.mapclass, simulate.simulate, bench.bench, demo.demo, batch.batch, live.live, replay.replay):
+    app.command()(_command)
 
 
 __all__ = ["app"]

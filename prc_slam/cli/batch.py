@@ -6,11 +6,8 @@ from pathlib import Path
 
 import typer
 
-from prc_slam.cli.common import BIND_OPT, check_outputs, console, handles_errors, say, wrote
-
-
-def register(app: typer.Typer) -> None:
-    app.command()(batch)
+from prc_slam.cli.common import check_outputs, console, handles_errors, say, wrote
+from prc_slam.cli.options import LOOPBACK, Bind
 
 
 @handles_errors
@@ -25,7 +22,7 @@ def batch(
     ),
     retries: int = typer.Option(2, "--retries", min=0, help="retries of a task that raised an unexpected error"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace the results of an earlier batch in OUT"),
-    bind: str = BIND_OPT,
+    bind: Bind = LOOPBACK,
 ) -> None:
     """Run a plan's job on every input, one Dask task per input (a local cluster of worker
     processes by default; --scheduler for a real cluster); writes OUT/<input-name>/ as the

@@ -7,21 +7,17 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from prc_slam.cli.common import DEFAULT_KITTI, JSON_OPT, check_outputs, console, handles_errors, print_table, wrote
-
-
-def register(app: typer.Typer) -> None:
-    app.command()(bench)
+from prc_slam.cli.common import DEFAULT_KITTI, check_outputs, console, finish, handles_errors, print_table
+from prc_slam.cli.options import Json
 
 
 @handles_errors
 def bench(
     kitti: Path = typer.Option(DEFAULT_KITTI, help="KITTI directory for the real-data figures (skipped if absent)"),
-    json_path: Path | None = JSON_OPT,
+    json_path: Json = None,
 ) -> None:
     """Throughput of each stage on its reference input (single process)."""
     from prc_slam.jobs.bench import run_bench
-    from prc_slam.jobs.common import write_json
 
     check_outputs(json_path=(json_path, "file"))
     if not (kitti / "velodyne").is_dir():
@@ -35,5 +31,4 @@ def bench(
         for key, value in figures.items():
             table.add_row(stage, key, f"{value:,.3f}" if isinstance(value, float) else str(value))
     print_table(table)
-    if json_path is not None:
-        wrote(write_json(json_path, results))
+    finish([], json_path, results)

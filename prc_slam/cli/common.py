@@ -1,4 +1,6 @@
-"""What every command shares: the console, the one error path, option types, tables."""
+"""What every command shares: the console, the one error path, output checks, option types, the
+progress display, the JSON and ``wrote`` lines at the end, tables (the shared options:
+:mod:`prc_slam.cli.options`)."""
 
 from __future__ import annotations
 
@@ -33,22 +35,7 @@ class Mode(str, Enum):
     forest = "forest"
 
 
-class OrganizeMethod(str, Enum):
-    auto = "auto"
-    ring = "ring"
-    order = "order"
-    beams = "beams"
-
-
 class Preset(str, Enum):
-    paper = "paper"
-    multibeam = "multibeam"
-
-
-class ClassifyPreset(str, Enum):
-    """``classify``'s presets: ``auto`` takes the one the input's sensor calls for."""
-
-    auto = "auto"
     paper = "paper"
     multibeam = "multibeam"
 
@@ -343,6 +330,14 @@ def variant_table(metrics: dict[str, Any], title: str) -> Table:
     return table
 
 
+def print_vehicle_ranges(metrics: dict[str, Any]) -> None:
+    """The vehicle instances and points found by range, when the run scored them."""
+    if "vehicle_by_range" in metrics:
+        from prc_slam.evaluation.scoring import range_table
+
+        print_table(range_table(metrics["vehicle_by_range"], "vehicle instances and points by range"))
+
+
 def prc_config(mode: Mode, preset: Preset, adaptive: bool | None, config_path: Path | None):
     from prc_slam.config import Config
     from prc_slam.prc.config import PRCConfig
@@ -361,65 +356,24 @@ def run_config(preset: Preset, config_path: Path | None, mode: Mode = Mode.urban
     return base if config_path is None else Config.from_yaml(config_path, base)
 
 
-def input_options(
-    topic: str | None = None,
-    meta: Path | None = None,
-    model: str | None = None,
-    rows: int | None = None,
-    cols: int | None = None,
-    destaggered: bool = True,
-    organize: OrganizeMethod | None = None,
-) -> dict[str, Any]:
-    """The reader options given on the command line (only those set), for ``open_dataset``."""
-    opts: dict[str, Any] = {"topic": topic, "meta": meta, "model": model, "rows": rows, "cols": cols}
-    if organize is not None:
-        opts["organize_method"] = organize.value
-    if not destaggered:  # (the readers' default is destaggered)
-        opts["destaggered"] = False
-    return {k: v for k, v in opts.items() if v is not None}
+def in_progress(job: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """``job(*args, reporter=..., **kwargs)`` under the progress display (standard error)."""
+    from prc_slam.jobs.progress import progress
+
+    with progress() as reporter:
+        return job(*args, reporter=reporter, **kwargs)
 
 
-def variant_list(text: str) -> list[str]:
-    names = [v.strip() for v in text.split(",") if v.strip()]
-    if not names:
-        raise ValueError("--variants: give at least one variant (e.g. raw,prc)")
-    return names
+def finish(written: list, json_path: Path | None, metrics: dict[str, Any], config: Any = None) -> None:
+    """Write the metrics JSON when ``--json`` asks for it (and the config used beside it, when
+    given), then say every file written."""
+    from prc_slam.jobs.common import write_json
+
+    wrote(written if json_path is None else [*written, *write_json(json_path, metrics, config)])
 
 
 def wrote(paths) -> None:
+    """One line ``wrote PATH`` per file written (None: nothing)."""
     for p in paths:
         if p is not None:
             console.print(f"wrote {p}", highlight=False)
-
-
-RRD_OPT = typer.Option(None, "--rrd", help="write a Rerun recording (.rrd) here")
-CONNECT_OPT = typer.Option(
-    None, "--connect", help="stream to a running Rerun viewer at this URL (rerun+http, port 9876, path /proxy)"
-)
-SERVE_OPT = typer.Option(False, "--serve-web", help="serve the Rerun web viewer on localhost and print its address")
-EVERY_OPT = typer.Option(5, "--log-every", min=1, help="log clouds and images on every n-th frame")
-MAP_VOXEL_OPT = typer.Option(0.5, "--map-voxel", min=0.0, help="thin the logged local map to this voxel (m)")
-SERVE_SECONDS_OPT = typer.Option(
-    None, "--serve-seconds", min=0.0, help="with --serve-web: stop serving after this long"
-)
-WEB_PORT_OPT = typer.Option(None, "--web-port", min=1, max=65535, help="with --serve-web: HTTP port (default 9090)")
-GRPC_PORT_OPT = typer.Option(None, "--grpc-port", min=1, max=65535, help="with --serve-web: stream port (default 9876)")
-BIND_OPT = typer.Option(
-    "127.0.0.1",
-    "--bind",
-    help="address what is served listens on (default the loopback: this machine only; 0.0.0.0: every interface)",
-)
-TOPIC_OPT = typer.Option(None, "--topic", help="bags/MCAP: the PointCloud2 topic (when there are several)")
-META_OPT = typer.Option(None, "--meta", help="Ouster pcap: the sensor's metadata json (default: beside the pcap)")
-MODEL_OPT = typer.Option(None, "--model", help="Velodyne pcap: the sensor model (default: from the packets)")
-ROWS_OPT = typer.Option(None, "--rows", min=1, help="unorganised sweeps: the sensor's beams (default: estimated)")
-ORGANIZE_OPT = typer.Option(
-    None, "--organize", help="unorganised sweeps: rows from a ring field, the point order or the beams (default: auto)"
-)
-COLS_OPT = typer.Option(None, "--cols", min=1, help="unorganised sweeps: columns per sweep (default: estimated)")
-FORMAT_OPT = typer.Option(None, "--format", help="input format (default: detected)")
-MAX_FRAMES_OPT = typer.Option(None, "--max-frames", min=1, help="use only the first N frames")
-STRIDE_OPT = typer.Option(
-    1, "--stride", min=1, help="use every N-th frame (keyframes: 5 turns a 10 Hz sensor into 2 Hz); before --max-frames"
-)
-JSON_OPT = typer.Option(None, "--json", help="write the metrics JSON here")

@@ -6,23 +6,8 @@ from pathlib import Path
 
 import typer
 
-from prc_slam.cli.common import (
-    BIND_OPT,
-    CONNECT_OPT,
-    EVERY_OPT,
-    MAP_VOXEL_OPT,
-    SERVE_OPT,
-    check_output,
-    class_table,
-    console,
-    handles_errors,
-    print_table,
-    variant_table,
-)
-
-
-def register(app: typer.Typer) -> None:
-    app.command()(demo)
+from prc_slam.cli.common import check_output, class_table, console, handles_errors, print_table, variant_table
+from prc_slam.cli.options import LOOPBACK, Bind, Connect, LogEvery, MapVoxel, ServeWeb
 
 
 @handles_errors
@@ -30,11 +15,11 @@ def demo(
     out: Path = typer.Option(Path("out/demo"), help="output directory"),
     frames: int = typer.Option(150, min=2, help="frames of the simulated hdl64 urban drive"),
     seed: int = typer.Option(0, min=0, help="scene and noise seed"),
-    connect: str | None = CONNECT_OPT,
-    serve_web: bool = SERVE_OPT,
-    bind: str = BIND_OPT,
-    log_every: int = EVERY_OPT,
-    map_voxel: float = MAP_VOXEL_OPT,
+    connect: Connect = None,
+    serve_web: ServeWeb = False,
+    bind: Bind = LOOPBACK,
+    log_every: LogEvery = 5,
+    map_voxel: MapVoxel = 0.5,
 ) -> None:
     """Simulate an urban drive (cached after the first run), run PRC, the online car/curb
     detectors and raw vs PRC-filtered KISS-ICP odometry in one pass, and write a report, metrics,

@@ -2,38 +2,23 @@
 
 from __future__ import annotations
 
-from enum import Enum
 from pathlib import Path
+from typing import Literal
 
 import typer
 
-from prc_slam.cli.common import (
-    BIND_OPT,
-    CONNECT_OPT,
-    EVERY_OPT,
-    FORMAT_OPT,
-    JSON_OPT,
-    META_OPT,
-    MODEL_OPT,
-    RRD_OPT,
-    SERVE_OPT,
-    Preset,
-    check_outputs,
-    console,
-    handles_errors,
-    run_config,
-    wrote,
+from prc_slam.cli.common import Preset, check_outputs, console, finish, handles_errors, run_config
+from prc_slam.cli.options import (
+    Format,
+    Json,
+    LogEvery,
+    Meta,
+    Model,
+    PrcPreset,
+    RunConfig,
+    ServedRerunOptions,
+    grouped,
 )
-
-
-def register(app: typer.Typer) -> None:
-    app.command()(live)
-
-
-class LiveVariant(str, Enum):
-    raw = "raw"
-    prc = "prc"
-    prc_classaware = "prc+classaware"
 
 
 def summary_line(m: dict) -> str:
@@ -49,11 +34,14 @@ def summary_line(m: dict) -> str:
 
 
 @handles_errors
+@grouped
 def live(
     source: str = typer.Argument(
         ..., help="velodyne://HOST:PORT (2368), ouster://HOST:PORT (7502, with --meta), or a recording (--realtime)"
     ),
-    variant: LiveVariant = typer.Option(LiveVariant.prc, "--variant", help="the odometry variant run"),
+    variant: Literal["raw", "prc", "prc+classaware"] = typer.Option(
+        "prc", "--variant", help="the odometry variant run"
+    ),
     online: bool = typer.Option(False, "--online", help="also run the online car/curb detectors"),
     realtime: bool = typer.Option(
         False, "--realtime", help="a recording as SOURCE: play it at its recorded rate as a stand-in sensor"
@@ -64,23 +52,20 @@ def live(
     ),
     queue: int = typer.Option(1, "--queue", min=1, help="sweeps waiting at most; when full the oldest is dropped"),
     max_frames: int | None = typer.Option(None, "--max-frames", min=1, help="end after this many sweeps"),
-    preset: Preset = typer.Option(Preset.multibeam, help="PRC parameters"),
-    config: Path | None = typer.Option(None, help="YAML config (prc, filter, odometry sections)"),
-    meta: Path | None = META_OPT,
-    model: str | None = MODEL_OPT,
-    fmt: str | None = FORMAT_OPT,
-    rrd: Path | None = RRD_OPT,
-    connect: str | None = CONNECT_OPT,
-    serve_web: bool = SERVE_OPT,
-    bind: str = BIND_OPT,
+    preset: PrcPreset = Preset.multibeam,
+    config: RunConfig = None,
+    meta: Meta = None,
+    model: Model = None,
+    fmt: Format = None,
+    rerun: ServedRerunOptions = ServedRerunOptions(),
     spawn: bool = typer.Option(False, "--spawn", help="spawn the Rerun desktop viewer and watch live"),
-    log_every: int = EVERY_OPT,
+    log_every: LogEvery = 5,
     out: Path | None = typer.Option(None, "--out", help="write the filtered stream here (.mcap), as the run goes"),
     poses_out: Path | None = typer.Option(None, "--poses-out", help="write the poses here (TUM), as the run goes"),
     labels_out: Path | None = typer.Option(
         None, "--labels-out", help="write each sweep's PRC labels here (NNNNNN.label, as classify does)"
     ),
-    json_path: Path | None = JSON_OPT,
+    json_path: Json = None,
 ) -> None:
     """Run PRC, the filter and KISS-ICP on a sensor's sweeps as they arrive, and watch them live.
 
@@ -88,7 +73,6 @@ def live(
     waits; when processing falls behind, whole sweeps are dropped and counted (``--queue``). A
     status line (rates, drops, latency) every second on a terminal, every 10 s in the log; the
     figures at the end and in --json. Ctrl-C or SIGTERM stops the run and closes every output."""
-    from prc_slam.jobs.common import Viewer, write_json
     from prc_slam.live.run import LiveOptions, run_live
     from prc_slam.live.sources import parse_source
 
@@ -100,19 +84,16 @@ def live(
     if out is not None and out.suffix.lower() != ".mcap":
         raise ValueError(f"--out {out}: the filtered stream is written as MCAP: give a .mcap name")
     check_outputs(
-        rrd=(rrd, "file"), out=(out, "file"), poses_out=(poses_out, "file"), json_path=(json_path, "file"),
+        rrd=(rerun.rrd, "file"), out=(out, "file"), poses_out=(poses_out, "file"), json_path=(json_path, "file"),
         labels_out=(labels_out, "dir"),
     )  # fmt: skip
     cfg = run_config(preset, config)
     opts = LiveOptions(
-        variant=variant.value, online=online, timeout=timeout, queue=queue, realtime_rate=rate,
+        variant=variant, online=online, timeout=timeout, queue=queue, realtime_rate=rate,
         max_frames=max_frames, model=model, meta=meta, fmt=fmt,
         open_options={"meta": meta} if (src.kind == "file" and meta is not None) else {},
     )  # fmt: skip
-    viewer = Viewer(rrd, connect, serve_web, log_every, spawn=spawn, bind=bind)
+    viewer = rerun.viewer(log_every, spawn=spawn)
     run = run_live(src, cfg, opts, viewer=viewer, poses_out=poses_out, filtered_out=out, labels_out=labels_out)
     console.print(summary_line(run.metrics), highlight=False)
-    written = list(run.written)
-    if json_path is not None:
-        written += write_json(json_path, run.metrics, cfg)
-    wrote(written)
+    finish(list(run.written), json_path, run.metrics, cfg)

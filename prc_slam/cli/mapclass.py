@@ -5,50 +5,13 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
-from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import typer
 
-from prc_slam.cli.common import (
-    BIND_OPT,
-    COLS_OPT,
-    CONNECT_OPT,
-    FORMAT_OPT,
-    JSON_OPT,
-    MAX_FRAMES_OPT,
-    META_OPT,
-    MODEL_OPT,
-    ORGANIZE_OPT,
-    ROWS_OPT,
-    RRD_OPT,
-    SERVE_OPT,
-    TOPIC_OPT,
-    OrganizeMethod,
-    check_outputs,
-    class_table,
-    console,
-    handles_errors,
-    input_options,
-    print_table,
-    say,
-    wrote,
-)
-
-
-def register(app: typer.Typer) -> None:
-    app.command()(mapclass)
-
-
-class MapMode(str, Enum):
-    urban = "urban"
-    forest = "forest"
-
-
-class Normals(str, Enum):
-    voxels = "voxels"
-    points = "points"
+from prc_slam.cli.common import check_outputs, class_table, console, finish, handles_errors, print_table, say
+from prc_slam.cli.options import Json, MaxFrames, ReaderOptions, ServedRerunOptions, grouped
 
 
 def print_mapclass(metrics: dict[str, Any], title: str) -> None:
@@ -101,14 +64,19 @@ def print_mapclass(metrics: dict[str, Any], title: str) -> None:
 
 
 @handles_errors
+@grouped
 def mapclass(
     input: Path = typer.Argument(..., help="cloud file (LAS/LAZ, PLY, PCD, NPY) or a sequence to accumulate"),
     out: Path = typer.Option(Path("out/mapclass"), help="output directory: one LAS 1.4 per class + combined"),
-    json_path: Path | None = JSON_OPT,
+    json_path: Json = None,
     config: Path | None = typer.Option(None, help="YAML config (its mapclass section)"),
-    normals: Normals | None = typer.Option(None, help="normals/segmentation per voxel or per point (k-NN)"),
+    normals: Literal["voxels", "points"] | None = typer.Option(
+        None, help="normals/segmentation per voxel or per point (k-NN)"
+    ),
     paper: bool = typer.Option(False, "--paper", help="the paper's steps only (our additions off)"),
-    mode: MapMode | None = typer.Option(None, help="forest: slim pillars are stems (trunk), foliage is vegetation"),
+    mode: Literal["urban", "forest"] | None = typer.Option(
+        None, help="forest: slim pillars are stems (trunk), foliage is vegetation"
+    ),
     tile: float | None = typer.Option(
         None, min=0.0, help="tile side (m); 0: one piece; default: tiles above 12 M points"
     ),
@@ -123,20 +91,11 @@ def mapclass(
         "--reference/--no-reference",
         help="score a LAS/LAZ file against its own classes (default: if it has them)",
     ),
-    topic: str | None = TOPIC_OPT,
-    meta: Path | None = META_OPT,
-    model: str | None = MODEL_OPT,
-    rows: int | None = ROWS_OPT,
-    cols: int | None = COLS_OPT,
-    organize: OrganizeMethod | None = ORGANIZE_OPT,
-    fmt: str | None = FORMAT_OPT,
-    max_frames: int | None = MAX_FRAMES_OPT,
+    reader: ReaderOptions = ReaderOptions(),
+    max_frames: MaxFrames = None,
     every: int = typer.Option(1, min=1, help="sequence: accumulate every n-th frame"),
     poses: Path | None = typer.Option(None, help="sequence: poses (KITTI or TUM file) instead of ground truth"),
-    rrd: Path | None = RRD_OPT,
-    connect: str | None = CONNECT_OPT,
-    serve_web: bool = SERVE_OPT,
-    bind: str = BIND_OPT,
+    rerun: ServedRerunOptions = ServedRerunOptions(),
     map_voxel: float = typer.Option(0.2, "--map-voxel", min=0.0, help="thin the logged map to this voxel (m)"),
 ) -> None:
     """Classify a registered map after registration (paper 004) and segregate it into
@@ -146,23 +105,22 @@ def mapclass(
     $DASK_SCHEDULER_ADDRESS when that is set."""
     from data_tools.formats.clouds import is_cloud_file
     from prc_slam.config import Config
-    from prc_slam.jobs.common import Viewer, write_json
     from prc_slam.jobs.mapclass import mapclass_job, refuse_sequence_options
     from prc_slam.jobs.progress import progress
     from prc_slam.mapclass import paper_config
 
-    check_outputs(out=(out, "dir"), json_path=(json_path, "file"), rrd=(rrd, "file"))
-    options = input_options(topic, meta, model, rows, cols, organize=organize)
+    check_outputs(out=(out, "dir"), json_path=(json_path, "file"), rrd=(rerun.rrd, "file"))
+    options = reader.open_options()
     if is_cloud_file(input):
         refuse_sequence_options(input, poses, max_frames, every, **options)
     cfg = Config.from_yaml(config) if config is not None else Config()
     if paper:
         cfg.mapclass = paper_config().model_copy(update={"normals": cfg.mapclass.normals})
     if normals is not None:
-        cfg.mapclass.normals = normals.value
+        cfg.mapclass.normals = normals
     if mode is not None:
-        cfg.mapclass.mode = mode.value
-    viewer = Viewer(rrd, connect, serve_web, 1, map_voxel=map_voxel, bind=bind)
+        cfg.mapclass.mode = mode
+    viewer = rerun.viewer(1, map_voxel=map_voxel)
     with contextlib.ExitStack() as stack:
         tiler = None
         if scheduler is not None or workers is not None or os.environ.get("DASK_SCHEDULER_ADDRESS"):
@@ -172,13 +130,10 @@ def mapclass(
             tiler = functools.partial(classify_tiled_distributed, client=client)
         reporter = stack.enter_context(progress())
         metrics = mapclass_job(
-            input, cfg, out, tile=tile, margin=margin, fmt=fmt, max_frames=max_frames, every=every, poses=poses,
+            input, cfg, out, tile=tile, margin=margin, fmt=reader.fmt, max_frames=max_frames, every=every, poses=poses,
             viewer=viewer, reporter=reporter, note=say, laz=laz, reference=reference, tiler=tiler,
             **options,
         )  # fmt: skip
     print_mapclass(metrics, f"map classification of {input}")
-    written = [out / ("map_classified.laz" if laz else "map_classified.las")]
-    if json_path is not None:
-        written += write_json(json_path, metrics, cfg)
-    wrote(written)
+    finish([out / ("map_classified.laz" if laz else "map_classified.las")], json_path, metrics, cfg)
     console.print(f"one {'LAZ' if laz else 'LAS'} file per class in {out}", highlight=False)

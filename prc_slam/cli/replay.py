@@ -9,10 +9,6 @@ import typer
 from prc_slam.cli.common import console, handles_errors
 
 
-def register(app: typer.Typer) -> None:
-    app.command()(replay)
-
-
 @handles_errors
 def replay(
     capture: Path = typer.Argument(..., help="a Velodyne or Ouster packet capture (.pcap, .pcapng)"),

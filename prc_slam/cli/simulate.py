@@ -2,43 +2,24 @@
 
 from __future__ import annotations
 
-from enum import Enum
 from pathlib import Path
+from typing import Literal
 
 import typer
 
 from prc_slam.cli.common import check_outputs, console, handles_errors
 
-
-def register(app: typer.Typer) -> None:
-    app.command()(simulate)
-
-
-class SceneKind(str, Enum):
-    urban = "urban"
-    forest = "forest"
-    corridor = "corridor"
-    street = "street"
-
-
-class SensorKind(str, Enum):
-    hdl64 = "hdl64"
-    vlp16 = "vlp16"
-    hdl32 = "hdl32"
-    os1_64 = "os1-64"
-    os0_128 = "os0-128"
-    os2_128 = "os2-128"
-    profiler_urban = "profiler-urban"
-    profiler_backpack = "profiler-backpack"
-    als = "als"
-    tls = "tls"
+Scene = Literal["urban", "forest", "corridor", "street"]
+Sensor = Literal[
+    "hdl64", "vlp16", "hdl32", "os1-64", "os0-128", "os2-128", "profiler-urban", "profiler-backpack", "als", "tls"
+]
 
 
 @handles_errors
 def simulate(
     out: Path = typer.Option(..., help="output directory (the simulator's dataset format)"),
-    scene: SceneKind = typer.Option(SceneKind.urban, help="procedural scene"),
-    sensor: SensorKind = typer.Option(SensorKind.hdl64, help="simulated sensor"),
+    scene: Scene = typer.Option("urban", help="procedural scene"),
+    sensor: Sensor = typer.Option("hdl64", help="simulated sensor"),
     frames: int = typer.Option(200, min=1, help="frames (sweeps, or blocks of scan lines for profilers)"),
     seed: int = typer.Option(0, min=0, help="scene, trajectory and noise seed: same seed, same bytes"),
     outlier_rate: float = typer.Option(0.0, min=0.0, max=1.0, help="background-illumination outliers per slot"),
@@ -58,21 +39,21 @@ def simulate(
     if pcap is not None:
         from data_tools.formats.velodyne_packets import capture_format
 
-        capture_format(sensor.value)  # the one-line error for other sensors
+        capture_format(sensor)  # the one-line error for other sensors
         check_outputs(pcap=(pcap, "file"))
-    if sensor.value in ("als", "tls"):
+    if sensor in ("als", "tls"):
         from data_tools.sim.airborne import simulate_cloud
 
-        cloud, path = simulate_cloud(sensor.value, scene.value, seed, density, out)
-        console.print(f"wrote {len(cloud):,} points ({sensor.value} over {scene.value}) to {path}", highlight=False)
+        cloud, path = simulate_cloud(sensor, scene, seed, density, out)
+        console.print(f"wrote {len(cloud):,} points ({sensor} over {scene}) to {path}", highlight=False)
         return
     from data_tools.sim.dataset import SimSequence, export_kitti, write_sequence
     from data_tools.sim.simulator import NoiseConfig, SimConfig, Simulator
     from prc_slam.jobs.progress import progress
 
     cfg = SimConfig(
-        scene=scene.value,
-        sensor=sensor.value,
+        scene=scene,
+        sensor=sensor,
         frames=frames,
         seed=seed,
         wind=wind,
@@ -85,7 +66,7 @@ def simulate(
     if pcap is not None:
         from data_tools.formats.velodyne_packets import SimCapture
 
-        capture = SimCapture(pcap, sim.sensor, sensor.value)
+        capture = SimCapture(pcap, sim.sensor, sensor)
 
     def on_frame(frame) -> None:
         if capture is not None:
@@ -93,7 +74,7 @@ def simulate(
         task.advance()
 
     with progress() as reporter:
-        task = reporter.task(f"simulating {scene.value}/{sensor.value}", frames)
+        task = reporter.task(f"simulating {scene}/{sensor}", frames)
         try:
             write_sequence(sim, out, on_frame=on_frame)
         finally:
