@@ -35,7 +35,7 @@ def simulated(sim_dir: Path, sensor: str, seed: int, frames: int) -> Path:
     """The street drive of ``sensor`` and ``seed`` under ``sim_dir`` (simulated when missing)."""
     out = sim_dir / f"{sensor}_s{seed}"
     if not (out / "sim.json").exists():
-        cmd = [sys.executable, "-m", "prc_slam.cli", "simulate", "--scene", "street", "--sensor", sensor,
+        cmd = [sys.executable, "-m", "prc_slam", "simulate", "--scene", "street", "--sensor", sensor,
                "--frames", str(frames), "--seed", str(seed), "--out", str(out)]  # fmt: skip
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     return out
