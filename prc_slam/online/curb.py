@@ -164,7 +164,7 @@ def detect_curbs(
     has_pc[regions.ravel()[pc]] = True
     ok = has_pc & (zmax - zmin <= p.t_curb) & (zmax - zmin >= p.min_height)
     if wrap and np.isfinite(p.max_spacing):
-        ok &= region_spacing(scan, regions, n) <= p.max_spacing
+        ok &= region_spacing(scan, regions, n, np.flatnonzero(ok)) <= p.max_spacing
     short = np.flatnonzero(ok & (n_lines < p.min_lines))
     if len(short):  # few scan lines: accept only with >= 3 points and a small median curvature
         lab = regions.ravel()
@@ -194,12 +194,19 @@ def beam_gap_up(altitude: np.ndarray) -> np.ndarray:
     return up
 
 
-def region_spacing(scan: Scan, regions: np.ndarray, n: int) -> np.ndarray:
+def region_spacing(scan: Scan, regions: np.ndarray, n: int, which: np.ndarray | None = None) -> np.ndarray:
     """Per region ``0..n``: the median over its slots of range x the gap to the next beam up (m),
-    the vertical spacing of a spinning sensor's beams on a vertical surface there (index 0: 0)."""
+    the vertical spacing of a spinning sensor's beams on a vertical surface there (index 0, regions
+    without slots and those not in ``which``, if given: 0)."""
     lab = regions.ravel()
-    members = np.flatnonzero(lab)
     out = np.zeros(n + 1)
+    if which is None:
+        members = np.flatnonzero(lab)
+    else:
+        wanted = np.zeros(n + 1, bool)
+        wanted[which] = True
+        wanted[0] = False
+        members = np.flatnonzero(wanted[lab])
     if len(members) == 0:
         return out
     rows = members // scan.shape[1]

@@ -32,9 +32,10 @@ and the paper section each follows or where it departs:
    beam gap above its highest return, at most ``max_top_gap``), 90 % of its returns lie at most
    ``max_top`` above it, its lowest return within ``max_bottom`` of it (cars stand on the
    ground; less the slot spacing below each return, range x the gap to the next beam down, which
-   missed the object: ``bottom_gap``), its footprint (the least-area rectangle over 18 headings, ``min_area``; a car seen
-   at a corner, with some returns of its far side, spreads alike both ways and its principal-axis
-   extent was up to 3.9 m wide: simulated hdl64 seed 2, 74 -> 80 of 111 vehicles found) between
+   missed the object: ``bottom_gap``), its footprint (the least-area rectangle over 18 headings,
+   ``min_area``; a car seen at a corner, with some returns of its far side, spreads alike both
+   ways and its principal-axis extent was up to 3.9 m wide: simulated hdl64 seed 2, 74 -> 80 of
+   111 vehicles found) between
    ``min_length`` and ``max_length`` long and at most ``max_width`` wide, and it is no thin sheet
    (``min_thickness``, the 10-90 % spread across its principal axis).
 5b. Grazing surfaces: a beam meets a roof or a bonnet at a grazing angle, metres beyond the car's
@@ -1007,6 +1008,10 @@ def _curb_faces(
         while j < n:
             a, k = pts[j - 1], pts[j]
             dz = xyz[k, 2] - xyz[a, 2]
+            # a NaN local ground fails the level test, as the infinite one did
+            if not (dz > min_step and abs(xyz[a, 2] - zg[a]) < ground_tol):
+                j += 1
+                continue
             run = abs(rho[j] - rho[j - 1])
             # less the run of the two beams on level ground: a step within one beam gap is steep, where the beams
             # lie at most max_spacing apart up a vertical surface there
@@ -1015,9 +1020,8 @@ def _curb_faces(
                 if j >= 2 and rho[j - 1] > rho[j - 2] and rho[j] > rho[j - 1]:  # less the grade the column climbs to a
                     grade = (xyz[a, 2] - xyz[pts[j - 2], 2]) / (rho[j - 1] - rho[j - 2])
                     dz -= max(grade, 0.0) * (rho[j] - rho[j - 1])
-            # a steep step up from a return at the local ground level starts a possible face (a NaN
-            # local ground fails the level test, as the infinite one did)
-            if not (dz > min_step and dz > steep * run and abs(xyz[a, 2] - zg[a]) < ground_tol):
+            # a steep step up from a return at the local ground level starts a possible face
+            if not (dz > min_step and dz > steep * run):
                 j += 1
                 continue
             base = xyz[a, 2]
