@@ -98,6 +98,10 @@ class CurbParams:
     max_curvature: float = 30.0
     max_gap: float = 0.5  # region growing joins neighbours at most this far apart (m); inf: range image only
     last_only: bool = False  # True: one PC per line, after its final ground return
+    # m, spinning sensors: a region is no curb where its beams lie farther apart up its columns than this (median
+    # range x gap to the next beam up): a vertical region seen by one ring there (a facade's foot) measures no
+    # height, whether it goes on up between the beams or not (inf: the paper's test on every region)
+    max_spacing: float = 0.4
 
 
 @dataclass
@@ -159,6 +163,8 @@ def detect_curbs(
     has_pc = np.zeros(n + 1, dtype=bool)
     has_pc[regions.ravel()[pc]] = True
     ok = has_pc & (zmax - zmin <= p.t_curb) & (zmax - zmin >= p.min_height)
+    if wrap and np.isfinite(p.max_spacing):
+        ok &= region_spacing(scan, regions, n, np.flatnonzero(ok)) <= p.max_spacing
     short = np.flatnonzero(ok & (n_lines < p.min_lines))
     if len(short):  # few scan lines: accept only with >= 3 points and a small median curvature
         lab = regions.ravel()
@@ -172,6 +178,43 @@ def detect_curbs(
     ok[0] = False
     mask = ok[regions]
     return CurbResult(mask, _polylines(regions, ok, _line_index(scan), xyz), possible)
+
+
+def beam_gap_up(altitude: np.ndarray) -> np.ndarray:
+    """Each beam's elevation gap to the next beam up (rad; the highest beam: its gap down), in
+    the given row order; one beam: 0."""
+    alt = np.asarray(altitude, dtype=np.float64)
+    if len(alt) < 2:
+        return np.zeros(len(alt))
+    order = np.argsort(alt, kind="stable")
+    gaps = np.diff(alt[order])
+    up = np.empty(len(alt))
+    up[order[:-1]] = gaps
+    up[order[-1]] = gaps[-1]
+    return up
+
+
+def region_spacing(scan: Scan, regions: np.ndarray, n: int, which: np.ndarray | None = None) -> np.ndarray:
+    """Per region ``0..n``: the median over its slots of range x the gap to the next beam up (m),
+    the vertical spacing of a spinning sensor's beams on a vertical surface there (index 0, regions
+    without slots and those not in ``which``, if given: 0)."""
+    lab = regions.ravel()
+    out = np.zeros(n + 1)
+    if which is None:
+        members = np.flatnonzero(lab)
+    else:
+        wanted = np.zeros(n + 1, bool)
+        wanted[which] = True
+        wanted[0] = False
+        members = np.flatnonzero(wanted[lab])
+    if len(members) == 0:
+        return out
+    rows = members // scan.shape[1]
+    spacing = scan.ranges.ravel()[members].astype(np.float64) * beam_gap_up(scan.sensor.altitude)[rows]
+    ids = lab[members].astype(np.int64)
+    groups = np.unique(ids)
+    out[groups] = group_medians(ids, spacing.astype(np.float32), groups)
+    return out
 
 
 def _line_before(scan: Scan, slots: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -101,6 +102,9 @@ class OnlineDetector:
     (os0-128 street ground recall 0.27). The curb and car steps keep Sec. 5's ground and heights
     (their local ground from the column ground found more simulated cars but called hedges and
     structures cars on real sweeps).
+
+    ``curb_faces``: keyword arguments of :func:`~prc_slam.online.spinning.detect_curbs_spinning`
+    (``relative=False, top_tol=-1``: its steps in metres, as before they were scaled to the beam spacing).
     """
 
     def __init__(
@@ -115,6 +119,7 @@ class OnlineDetector:
         spinning_curbs: bool = True,
         level: bool = True,
         column_ground_all: bool = True,
+        curb_faces: dict[str, Any] | None = None,
     ) -> None:
         self.level = level
         self.levelled: bool | None = None  # whether this stream is levelled (set by its first ground plane)
@@ -128,6 +133,7 @@ class OnlineDetector:
         self.spinning_path = spinning_path
         self.spinning_curbs = spinning_curbs
         self.column_ground_all = column_ground_all
+        self.curb_faces = dict(curb_faces or {})
 
     @classmethod
     def paper(cls) -> OnlineDetector:
@@ -138,7 +144,7 @@ class OnlineDetector:
         ``coarse.PROFILER_START_RADIUS``: our reading of lines that "start at the ground".)"""
         return cls(
             CoarseParams(),
-            curb=CurbParams(last_only=True, max_gap=float("inf"), min_height=0.0),
+            curb=CurbParams(last_only=True, max_gap=float("inf"), min_height=0.0, max_spacing=float("inf")),
             car=CarParams(min_above_ground=0.0, curb_bridge=0.0),
             per_line_height=True,
             spinning_path=False,
@@ -213,7 +219,7 @@ class OnlineDetector:
             def all_curbs() -> CurbResult:  # Sec. 6, and the curb faces of a spinning sensor
                 curbs = detect_curbs(scan, coarse, ground, heights, self.curb_params)
                 if self.spinning_curbs:
-                    face, polylines = detect_curbs_spinning(scan, lines, ground, line_heights, zg=zg)
+                    face, polylines = detect_curbs_spinning(scan, lines, ground, line_heights, zg=zg, **self.curb_faces)
                     curbs.mask |= face
                     curbs.polylines = curbs.polylines + polylines
                 return curbs
