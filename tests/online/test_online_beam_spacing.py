@@ -14,7 +14,7 @@ from prc_slam.online import OnlineDetector
 from prc_slam.online.curb import beam_gap_up, region_spacing
 from prc_slam.online.spinning import SpinningCarParams, _curb_faces, _ground_run
 from prc_slam.scan import Scan, SpinningSensor
-from tests.test_online_spinning import MOUNT, car_boxes, sweep
+from tests.inputs.spinning import MOUNT, car_boxes, sweep
 
 #: beams of the hand-made column (deg), lowest first; one column, so a slot's row is its index
 ALT = np.radians([-12.0, -11.0, -10.0, -9.0, -8.0])
