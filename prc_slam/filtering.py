@@ -11,8 +11,10 @@ deskewing, cropping and hashing every point. Points PRC found one-sided (thin po
 never sampled away.
 
 KISS-ICP registers a coarser subset (``source_cell``), except where the scan samples a class of
-``source_dense`` (the ground) at least as finely as KISS-ICP's map (``dense_spacing``): there every
-kept point is registered. The ground is the only class that fixes height, roll and pitch; where its
+``source_dense`` (the ground) at least as finely as ``dense_spacing`` (1/3 m): there every kept
+point is registered, and KISS-ICP's own source voxel chooses among them as it does for all points
+(the paper's "smart sampling as a function of the scan range", Sec. V-B, read off the scan's own
+density rather than a range). The ground is the only class that fixes height, roll and pitch; where its
 map is dense, a ground point's nearest map point lies straight below or above it, so each one holds
 the vertical tightly, and thinning it there costs vertical accuracy that nothing else restores.
 Where the rings are far apart, a ground point's correspondence is loose along the surface, and the
@@ -47,11 +49,12 @@ class FilterConfig(BaseModel):
     was more accurate still (x0.82 / x0.95) but lost a 16-beam walk read at one sweep in 30 (3 m
     steps) that 5 m and 10 m hold: many registered ground points pull a poor initial guess towards
     staying put.
-    Densely sampled ground (``source_dense``, ``dense_spacing``) registered in full, measured on
-    tuning drives (hdl64, 150 frames, seeds 200-202): per-frame vertical error 5-7 mm instead of
-    11-17 mm (all points: 4-5 mm), roll 54-56 mdeg instead of 89-130 (all points: 32-43), ATE
-    0.022 / 0.027 / 0.026 m instead of 0.028 / 0.027 / 0.034 (all points 0.023 / 0.028 / 0.037),
-    with about 850 source points instead of 520 (all points: 1300).
+    Densely sampled ground (``source_dense``, ``dense_spacing``: every 1/3 m sub-cell of its 1 m
+    cell holds a point) registered in full, measured on tuning drives (hdl64, 150 frames, seeds
+    200-202, against the coarse grids alone / all points): per-frame vertical error 8-10 mm
+    (11-17 / 4-5), roll 78-97 mdeg (89-130 / 32-43), ATE 0.023 / 0.024 / 0.029 m (0.028 / 0.027 /
+    0.034 and 0.023 / 0.028 / 0.037) with ~610 source points (~520 / ~1300). ``dense_spacing: 0.5``
+    (~700 source points; vertical 6-7 mm, roll 65-77 mdeg) lost the 16-beam walk at 3 m steps.
     ``FilterConfig(source_dense=[])`` restores the coarse grids everywhere;
     ``FilterConfig(cell=3.0, source_cell={"ground": 10.0, "building": 4.0, "vegetation": 3.0}, source_dense=[])``
     the policy before that; ``FilterConfig(cell=1.0, sample={}, sample_other=0, source_cell={})``
