@@ -88,7 +88,8 @@ class FilterConfig(BaseModel):
         0.33,
         gt=0,
         description="point spacing (m) at or below which a class of `source_dense` counts as densely sampled (its "
-        "map cell is cut into round(cell / dense_spacing) parts along each axis: 3 x 3 for the 1 m ground cell). "
+        "map cell is cut into round(cell / dense_spacing) parts along each axis, at most 8 (4 for a cube): 3 x 3 for "
+        "the 1 m ground cell). "
         "0.5 (KISS-ICP's map voxel) also registers the 16-beam rings within ~5 m and lost a walk read at one sweep "
         "in 30 (3 m steps)",
     )
@@ -212,7 +213,7 @@ def _filter_kernel(points, ids, labels, drop, planar, sample, spare, random, siz
                     last_rank = rank
             continue
         keep[i] = True
-    for h in range(size):  # each cell's point count, on the point that stands for it
+    for h in range(size):  # each cell's occupied sub-cells, on the point that stands for it
         if table[2 * h] >= 0:
             occupancy[table[2 * h + 1]] = _popcount(filled[h])
     for i in range(n):
@@ -348,7 +349,7 @@ def filter_points(
 
 def _dense_parts(config: FilterConfig, planar: np.ndarray, sample: np.ndarray) -> np.ndarray:
     """Per class code, the parts ``k`` along each axis of its map cell into which the cell is cut
-    to test its coverage (``round(cell / dense_spacing)``), 0 for the classes not in
+    to test its coverage (``round(cell / dense_spacing)``, at most 8, 4 for a cube), 0 for the classes not in
     ``config.source_dense``: a cell counts as densely sampled when ``k ** 2`` of its sub-cells
     hold a point (all of them for a horizontal cell; as many as a surface crossing a cube)."""
     sub = np.zeros(256, np.int64)
@@ -357,12 +358,8 @@ def _dense_parts(config: FilterConfig, planar: np.ndarray, sample: np.ndarray) -
         cell = planar[c] if planar[c] > 0 else sample[c]
         if cell <= 0:
             continue  # kept in full in the map: no cell to test
-        k = max(1, round(cell / config.dense_spacing))
-        if k ** (2 if planar[c] > 0 else 3) > 64:
-            raise ValueError(
-                f"dense_spacing {config.dense_spacing} cuts the {cell} m cell of {name!r} into over 64 parts"
-            )
-        sub[c] = k
+        # one bit per sub-cell in a 64-bit mask: a larger cell is tested at cell / 8 (cube: / 4)
+        sub[c] = min(max(1, round(cell / config.dense_spacing)), 8 if planar[c] > 0 else 4)
     return sub
 
 

@@ -63,8 +63,11 @@ def test_ring_of_close_points_is_not_dense():
     second = ring + np.array([0.0, 0.5, 0.0])  # a second ring 0.5 m away: every quarter covered
     two = filter_points(np.r_[ring, second, lone], np.full(201, G, np.uint8), _config())
     assert two.keep.sum() == 2 and two.source.sum() == 2  # the dense cell in full, the lone point on the grid
-    with pytest.raises(ValueError, match="over 64 parts"):
-        filter_points(PTS, LAB, _config(dense_spacing=0.1))
+    # a spacing finer than 1/8 of the cell is tested at 1/8 (64 sub-cells, 4 occupied): not dense
+    assert (
+        filter_points(np.r_[ring, second, lone], np.full(201, G, np.uint8), _config(dense_spacing=0.05)).source.sum()
+        == 1
+    )
 
 
 def test_unknown_dense_class_is_a_clear_error():
