@@ -2,26 +2,16 @@
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
+
+from prc_slam.util.signals import process_table
 
 
 def processes_under(sid: int) -> list[int]:
     """The live (not zombie) processes whose SID (field 6 of ``/proc/<pid>/stat``) is ``sid``: a
     process started with ``start_new_session=True`` and every process it started."""
-    found = []
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/stat") as f:
-                fields = f.read().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[3]) == sid and fields[0] != "Z":
-            found.append(int(entry))
-    return found
+    return [pid for pid, state, _, session in process_table() if session == sid and state != "Z"]
 
 
 def wait_until(test: Callable[[], object], timeout: float) -> bool:

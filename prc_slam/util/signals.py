@@ -113,15 +113,13 @@ def frame_boundaries() -> Iterator[Callable[[], None]]:
         state.deferring, state.pending_since = False, None
 
 
-def children() -> list[int]:
-    """The pids of this process's children in its own session (Linux; empty elsewhere). A viewer
-    started in a session of its own is not among them."""
-    me, sid = os.getpid(), os.getsid(0)
-    found = []
+def process_table() -> list[tuple[int, str, int, int]]:
+    """``(pid, state, ppid, session id)`` of every process in ``/proc`` (Linux; empty elsewhere)."""
+    table = []
     try:
         entries = os.listdir("/proc")
     except OSError:
-        return found
+        return table
     for entry in entries:
         if not entry.isdigit():
             continue
@@ -130,9 +128,15 @@ def children() -> list[int]:
                 fields = f.read().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        if int(fields[1]) == me and int(fields[3]) == sid:  # ppid, session
-            found.append(int(entry))
-    return found
+        table.append((int(entry), fields[0], int(fields[1]), int(fields[3])))
+    return table
+
+
+def children() -> list[int]:
+    """The pids of this process's children in its own session (Linux; empty elsewhere). A viewer
+    started in a session of its own is not among them."""
+    me, sid = os.getpid(), os.getsid(0)
+    return [pid for pid, _, ppid, session in process_table() if ppid == me and session == sid]
 
 
 def end_children(grace: float = 2.0) -> None:
