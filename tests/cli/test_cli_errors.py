@@ -196,10 +196,10 @@ def test_ctrl_c_at_any_moment_is_one_line_and_130(tmp_path, sim):
 
 
 def test_ctrl_c_inside_a_native_callback_is_delivered_again(monkeypatch):
-    """Before: a Ctrl-C that landed in llvmlite's ctypes callback while numba compiled (a cold
-    cache) raised KeyboardInterrupt there, which Python printed ("Exception ignored on calling
-    ctypes callback function ... Traceback") and dropped; the run went on to its end. Now the
-    interrupt is sent again shortly after, once the callback has returned; elsewhere it is raised."""
+    """A Ctrl-C that lands in llvmlite's ctypes callback while numba compiles (a cold cache) would
+    raise KeyboardInterrupt there, which Python prints ("Exception ignored on calling ctypes
+    callback function ... Traceback") and drops; the interrupt is sent again shortly after, once the
+    callback has returned; elsewhere it is raised."""
     from types import SimpleNamespace
 
     from prc_slam import __main__ as launcher

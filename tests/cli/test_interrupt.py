@@ -86,7 +86,7 @@ def _check_partial(out: Path, line: str) -> int:
 
 
 def test_ctrl_c_in_compare_writes_the_frames_done(drive, tmp_path):
-    """Before: Ctrl-C after k frames wrote nothing but ``error: interrupted``."""
+    """Ctrl-C after k frames writes the outputs of those frames, not only ``error: interrupted``."""
     out, err = tmp_path / "c", tmp_path / "err.txt"
     proc = _start(["compare", str(drive), "--out", str(out)], err)
     _wait_for_progress(proc, err)
@@ -98,7 +98,7 @@ def test_ctrl_c_in_compare_writes_the_frames_done(drive, tmp_path):
 
 
 def test_sigterm_ends_compare_like_ctrl_c_and_leaves_no_process(drive, tmp_path):
-    """Before: SIGTERM killed the run without a word and left its forked frame process running."""
+    """SIGTERM ends the run with a message and ends its forked frame process too."""
     out, err = tmp_path / "c", tmp_path / "err.txt"
     proc = _start(["compare", str(drive), "--out", str(out)], err)
     _wait_for_progress(proc, err)
@@ -159,7 +159,7 @@ time.sleep(600)
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
 def test_the_frame_process_dies_with_its_parent(tmp_path, sig):
-    """Before: the child kept its copy of the parent's end of the pipe and waited on it forever
+    """A child that kept its copy of the parent's end of the pipe would wait on it forever
     once the parent was killed (an orphan at 100 % of nothing, holding the source's files)."""
     script = tmp_path / "parent.py"
     script.write_text(_PARENT)
@@ -197,8 +197,8 @@ launcher.main()
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_an_interrupt_ends_a_run_blocked_in_native_code(tmp_path, sig):
-    """Before: with the Rerun viewer gone, the sender blocked inside a native call ("Sender has been
-    blocked ...") where no Python signal handler runs: Ctrl-C was ignored, the run hung forever."""
+    """With the Rerun viewer gone, the sender blocks inside a native call ("Sender has been
+    blocked ...") where no Python signal handler runs; Ctrl-C or SIGTERM must still end the run."""
     import socket
 
     with socket.socket() as s:  # a port nobody listens on

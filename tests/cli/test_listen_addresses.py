@@ -81,7 +81,7 @@ def tiny(tmp_path_factory) -> Path:
 
 @pytest.mark.parametrize("command", ["compare", "view"])
 def test_serve_web_listens_on_the_loopback_only(tiny, tmp_path, command):
-    """Before: the gRPC server and the web viewer listened on 0.0.0.0 (every interface). ``view``
+    """The gRPC server and the web viewer listen on the loopback, not 0.0.0.0 (every interface). ``view``
     runs without a display here: with ``--serve-web`` it needs none."""
     web, grpc = _free_port(), _free_port()
     err = tmp_path / "err.txt"
@@ -126,7 +126,7 @@ def test_bind_exposes_with_one_warning(tiny, tmp_path):
 
 
 def test_the_local_dask_cluster_listens_on_the_loopback_only():
-    """Before: the dashboard of ``batch`` listened on :8787, every interface."""
+    """The dashboard of ``batch`` listens on the loopback, not on every interface."""
     pytest.importorskip("distributed")
     import psutil  # (a dependency of distributed)
 

@@ -161,7 +161,7 @@ def garbage_run() -> CompareResult:
 
 
 def test_report_metrics_and_console_lead_with_no_variant_can_be_trusted(garbage_run, tmp_path, caplog):
-    """Before: every variant 'ok (40 of 40 frames)' in report.md, nothing in metrics.json, no
+    """Not every variant 'ok (40 of 40 frames)' in report.md, nothing in metrics.json and no
     warning on the console."""
     metrics, _ = write_compare_outputs(garbage_run, Config(), tmp_path, "drive", write_kitti_poses, write_tum_poses)
     saved = json.loads((tmp_path / "metrics.json").read_text())

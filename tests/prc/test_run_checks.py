@@ -1,8 +1,8 @@
 """What every ``classify`` run says of its labels, with ground truth or without: the share of
 each class (``classes``), and a warning when PRC calls a quarter of a frame's returns noise.
 
-Before: a run on unlabelled sweeps reported no class at all, and the shared Hesai AT128 sweep (a
-mirror-scanning sensor organised as a 68-beam spinning one) came out 45 % noise without a word.
+A run on unlabelled sweeps reports its class shares, and the shared Hesai AT128 sweep (a
+mirror-scanning sensor organised as a 68-beam spinning one), 45 % noise, is said.
 """
 
 from __future__ import annotations

@@ -133,7 +133,7 @@ STATUS = ("/status", "acme_msgs/msg/Status", b"\x00\x01\x00\x00\x07\x00\x00\x00"
 
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_a_bag_without_type_definitions_reads_the_same_clouds(tmp_path, layout):
-    """Before: 'cannot open recording (damaged or truncated?): Bag contains no type definitions'
+    """Not 'cannot open recording (damaged or truncated?): Bag contains no type definitions'
     (sqlite3 layouts) or 'damaged or truncated recording (message 0 of topic /points): CDR message size
     mismatch' (MCAP with empty schemas: each type read as an empty structure). A topic
     of an unknown custom type beside the clouds does not stop them from being read."""
@@ -174,7 +174,7 @@ def test_raw_velodyne_packets_without_type_definitions_are_decoded(tmp_path, lay
 
 @pytest.mark.parametrize("layout", ["foxy-sqlite3", "mcap-empty-schemas"])
 def test_a_topic_of_an_unknown_type_without_definition_is_named(tmp_path, layout):
-    """Before: 'cannot open recording (damaged or truncated?): Bag contains no type definitions.
+    """Not 'cannot open recording (damaged or truncated?): Bag contains no type definitions.
     Instantiate AnyReader with a default_typestore argument.' (sqlite3), or 'no
     sensor_msgs/PointCloud2 topic' (MCAP). The one line names the topic, its type and what is missing."""
     messages = [("/points", "foo_msgs/msg/Bar", 10**18 + k, STATUS[2]) for k in range(2)]
@@ -189,7 +189,7 @@ def test_a_topic_of_an_unknown_type_without_definition_is_named(tmp_path, layout
 
 def test_a_definition_stored_as_unknown_is_named_not_called_damage(tmp_path):
     """rosbag2 (Iron on) stores the encoding 'unknown' for a type whose definition it could not
-    find while recording; rosbags cannot open such a recording. Before: 'cannot open recording
+    find while recording; rosbags cannot open such a recording. The error names it, not 'cannot open recording
     (damaged or truncated?): unknown'."""
     msgs, _ = ros2_sweeps(frames=2)
     bag = write_ros2(tmp_path / "bag", msgs)

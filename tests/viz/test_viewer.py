@@ -50,8 +50,8 @@ def _view(tiny: Path, **env: str) -> tuple[subprocess.CompletedProcess, int]:
 
 @linux
 def test_view_without_a_display_is_one_line_exit_2_and_leaves_no_process(tiny):
-    """Before: a traceback ("Failed to find Rerun Viewer executable in PATH") without the
-    environment's bin on PATH; with it, a viewer that died and a run that hung forever."""
+    """Not a traceback ("Failed to find Rerun Viewer executable in PATH"), nor a viewer that dies
+    and a run that hangs: one line, exit 2, no process left."""
     res, sid = _view(tiny)
     assert res.returncode == 2, res.stderr
     assert "Traceback" not in res.stderr
