@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs the Debian packages the project needs at run time and in its tests, when missing:
 #   libusb-1.0-0  loaded by Open3D's wheels
-#   chromium, xvfb  the web-viewer check (tests/test_web_viewer.py: Chromium on a virtual screen)
+#   chromium, xvfb  the web-viewer check (tests/viz/test_web_viewer.py: Chromium on a virtual screen)
 set -euo pipefail
 need=()
 if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then need+=(libusb-1.0-0); fi
