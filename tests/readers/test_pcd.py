@@ -20,6 +20,7 @@ from data_tools.formats.writers import write_las, write_ply
 from prc_slam.config import PRCConfig
 from prc_slam.prc import classify_scan
 from tests.conftest import SHARED_DATA
+from tests.messages import one_line
 
 MULTISENSOR = SHARED_DATA / "multisensor"
 ELEVATION_DEG = np.array([-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, -1, 15], float)
@@ -165,12 +166,6 @@ def test_pcd_binary_compressed_written_by_open3d(tmp_path):
     back, _ = read_pcd(tmp_path / "o.pcd")
     got = np.column_stack([back["x"], back["y"], back["z"]])
     np.testing.assert_allclose(got, xyz, atol=1e-5)
-
-
-def one_line(exc: pytest.ExceptionInfo, path: Path) -> str:
-    msg = str(exc.value)
-    assert "\n" not in msg and str(path) in msg
-    return msg
 
 
 @pytest.mark.parametrize(

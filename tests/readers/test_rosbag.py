@@ -28,6 +28,7 @@ from prc_slam.jobs.filter import run_filter
 from prc_slam.pipeline import classify_frames
 from prc_slam.prc.config import PRCConfig
 from prc_slam.scan import Scan
+from tests.messages import one_line
 
 EPOCH = 1_700_000_000  # s; recordings carry epoch stamps
 TOPIC = "/points"
@@ -392,12 +393,6 @@ def test_keep_labels_parsing():
 
 # --------------------------------------------------------------------------------------------
 # bad input: one-line errors naming the file
-
-
-def one_line(exc: pytest.ExceptionInfo, path) -> str:
-    text = str(exc.value)
-    assert "\n" not in text and str(path) in text
-    return text
 
 
 def test_recording_without_pointcloud2(tmp_path):
