@@ -90,7 +90,7 @@ def test_unknown_dense_class_is_a_clear_error():
     spacing=st.sampled_from([0.25, 0.5, 1.0]),
     representative=st.sampled_from(["first", "random"]),
 )
-def test_dense_rule_only_adds_ground_and_adds_every_dense_cell(seed, n, spacing, representative):
+def test_dense_rule_only_adds_ground_every_dense_cell_and_the_cells_it_frees(seed, n, spacing, representative):
     rng = np.random.default_rng(seed)
     pts = np.c_[rng.uniform(-4, 4, (n, 2)), rng.uniform(0, 2, n)]
     lab = rng.choice(np.array([G, B, L.VEGETATION, L.NOISE], np.uint8), n)
@@ -118,7 +118,14 @@ def test_dense_rule_only_adds_ground_and_adds_every_dense_cell(seed, n, spacing,
     dense = np.zeros(n, bool)
     dense[ground] = [len(covered[tuple(c)]) == k * k for c in cells]
     assert new.source[dense & new.keep].all()
-    assert not (new.source & ~old.source & ~dense).any()  # and nothing else
+    # and nothing else, but for a sparse point taking over a coarse source cell whose point stood
+    # for it before and is now registered as dense ground: at most one per such cell
+    source_cell = cfg.source_cell["ground"]
+    coarse = np.floor(pts[:, :2] / source_cell).astype(np.int64)
+    freed = {tuple(c) for c in coarse[old.source & dense]}
+    taken = [tuple(c) for c in coarse[new.source & ~old.source & ~dense]]
+    assert set(taken) <= freed
+    assert len(taken) == len(set(taken))
 
 
 def test_the_dense_rule_is_off_by_default():
