@@ -247,15 +247,26 @@ def _shared_returns(returns: LineReturns, lines: np.ndarray, shared: int, codes:
     returns.phi[own, 0] = phi[first[own]]
 
 
-def coarse_classify(scan: Scan, params: CoarseParams | None = None, t_prime: bool = True) -> CoarseResult:
+def coarse_classify(
+    scan: Scan, params: CoarseParams | None = None, t_prime: bool = True, only: np.ndarray | None = None
+) -> CoarseResult:
     """Run the coarse H / V / T classifier and (``t_prime``) T' on every scan line of ``scan``.
 
     Without ``t_prime`` the result's ``t_prime`` is None: one CUSUM per return less (the
-    spinning-sensor path, :mod:`prc_slam.online.spinning`, does not use T')."""
+    spinning-sensor path, :mod:`prc_slam.online.spinning`, does not use T'). ``only`` (a mask
+    over :func:`scan_lines`; spinning sensors): classify those lines alone, the slots of the
+    others keep code 0 (the result's ``lines`` and ``returns`` are those lines')."""
     p = params or CoarseParams()
     xyz = scan.slot_xyz64()
     valid = scan.valid.ravel()
     lines = scan_lines(scan)
+    if only is not None:
+        if shared_first(scan):
+            raise ValueError(f"{scan.source}: coarse_classify(only=...) needs lines that share no slot")
+        only = np.asarray(only, dtype=bool)
+        if only.shape != (len(lines),):
+            raise ValueError(f"only: one flag per scan line ({len(lines)}), got shape {only.shape}")
+        lines = lines[only]
     n_slots = xyz.shape[0]
     codes = np.zeros(n_slots, np.uint8)
     tp = np.zeros(n_slots, np.bool_)

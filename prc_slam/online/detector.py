@@ -28,6 +28,13 @@ from prc_slam.online.car import CarParams, detect_cars
 from prc_slam.online.coarse import CoarseParams, CoarseResult, coarse_classify
 from prc_slam.online.curb import CurbParams, CurbResult, detect_curbs
 from prc_slam.online.ground import GroundDetector, GroundParams
+from prc_slam.online.noise import (
+    HALFWAY_DEG,
+    column_spacing,
+    noise_baseline,
+    range_noise,
+    ring_surface,
+)
 from prc_slam.online.spinning import (
     SpinningCarParams,
     SpinningCars,
@@ -53,6 +60,10 @@ LEVEL_MIN_TILT_DEG = 2.2
 #: the sensor is the bench it stands on (the shared Hesai/Velodyne sample sweeps: 5-7 cm, tilted
 #: 3-9 deg), not the ground the detectors measure heights from
 LEVEL_MIN_HEIGHT_M = 0.3
+#: sweeps whose range noise sets a stream's (:meth:`OnlineDetector.range_sigma`)
+NOISE_SWEEPS = 3
+#: ... on every this many rings (an HDL-64 sweep still gives some 15,000 triples)
+NOISE_ROW_STRIDE = 4
 
 log = logging.getLogger("prc_slam.online")
 
@@ -103,6 +114,18 @@ class OnlineDetector:
     (their local ground from the column ground found more simulated cars but called hedges and
     structures cars on real sweeps).
 
+    ``noise_labels`` (spinning path only): returns, other than ground, that the coarse classifier
+    calls vegetation where their column spacing (``range x beam gap``) lies under the baseline the
+    sweep's range noise asks for (:mod:`prc_slam.online.noise`: the noise turns the paper's successive
+    steps by more than the classifier's state spread, ``veg_sigma``) take the classes of the classifier
+    with its steps taken over that baseline; car bodies beside a fine-beam sensor came out as vegetation
+    (False: the paper's classes everywhere).
+
+    ``ring_labels`` (spinning path only): vegetation returns whose column does not resolve the surface
+    (``range x beam gap`` over ``SpinningCarParams.veg_resolution``: a handful of returns per column,
+    each near an edge) but which lie on a smooth surface along their ring become horizontal or vertical
+    (:meth:`ring_relabel`).
+
     ``curb_faces``: keyword arguments of :func:`~prc_slam.online.spinning.detect_curbs_spinning`
     (``relative=False, top_tol=-1``: its steps in metres, as before they were scaled to the beam spacing).
     """
@@ -120,6 +143,8 @@ class OnlineDetector:
         level: bool = True,
         column_ground_all: bool = True,
         curb_faces: dict[str, Any] | None = None,
+        noise_labels: bool = True,
+        ring_labels: bool = True,
     ) -> None:
         self.level = level
         self.levelled: bool | None = None  # whether this stream is levelled (set by its first ground plane)
@@ -134,6 +159,9 @@ class OnlineDetector:
         self.spinning_curbs = spinning_curbs
         self.column_ground_all = column_ground_all
         self.curb_faces = dict(curb_faces or {})
+        self.noise_labels = noise_labels
+        self.ring_labels = ring_labels
+        self.range_sigmas: list[float] = []  # the first sweeps' range noise (noise_regime_codes)
 
     @classmethod
     def paper(cls) -> OnlineDetector:
@@ -150,6 +178,61 @@ class OnlineDetector:
             spinning_path=False,
             level=False,
         )
+
+    def range_sigma(self, scan: Scan) -> float:
+        """The stream's range noise (m, :func:`~prc_slam.online.noise.range_noise`): the median of
+        the estimates of its first :data:`NOISE_SWEEPS` sweeps (a property of the sensor; NaN
+        until a sweep gives one)."""
+        if len(self.range_sigmas) < NOISE_SWEEPS:
+            sigma = range_noise(scan.ranges, row_stride=NOISE_ROW_STRIDE)
+            if np.isfinite(sigma):
+                self.range_sigmas.append(sigma)
+        return float(np.median(self.range_sigmas)) if self.range_sigmas else float("nan")
+
+    def noise_regime_codes(
+        self, scan: Scan, coarse: CoarseResult, ground: np.ndarray, regimes_deg: tuple[float, ...]
+    ) -> tuple[list[np.ndarray], np.ndarray] | None:
+        """The returns of a spinning sweep that the coarse classifier calls vegetation (other than
+        ground) in the range-noise regime of each of ``regimes_deg`` (column spacing under
+        ``noise_baseline(sigma, angle)``: there the paper's successive steps up a column are turned that
+        far by the noise, and the call may be the noise's), and the coarse classes of every slot with the
+        steps of those returns' columns taken over the baseline the classifier's state spread asks for
+        (``noise_baseline(sigma, veg_sigma)`` as ``CoarseParams.min_step``, centred; other columns 0).
+        Only those columns are classified again (on the simulated hdl64 urban sweeps a few per cent of
+        them). None when no such return or the noise is unknown."""
+        params = self.coarse_params or default_coarse_params(scan)
+        sigma = self.range_sigma(scan)
+        baseline = noise_baseline(sigma, params.veg_sigma)
+        if baseline <= params.min_step:
+            return None
+        spacing = column_spacing(scan.ranges, scan.sensor.altitude)
+        keep = (coarse.codes == L.VEGETATION) & ~ground
+        masks = [keep & (spacing < noise_baseline(sigma, a)) for a in regimes_deg]
+        only = np.logical_or.reduce(masks).ravel()[coarse.lines].any(axis=1)
+        if not only.any():
+            return None
+        base = dataclasses.replace(params, min_step=baseline, centred=True)
+        return masks, coarse_classify(scan, base, t_prime=False, only=only).codes
+
+    def ring_relabel(self, scan: Scan, labels: np.ndarray, coarse: CoarseResult) -> None:
+        """Vegetation returns (``labels``, in place) that their column does not resolve and that lie
+        on a smooth surface along their ring become horizontal or vertical by their signed angle
+        (:func:`~prc_slam.online.noise.ring_surface`; ``ring_labels``)."""
+        r, c = np.nonzero(labels == L.VEGETATION)
+        res = self.spinning_params.veg_resolution
+        if res > 0 and len(r):
+            gap = column_spacing(np.ones((scan.shape[0], 1)), scan.sensor.altitude)[:, 0]  # rad per row
+            far = scan.ranges[r, c] * gap[r] > res
+            r, c = r[far], c[far]
+        if len(r) == 0:
+            return
+        unresolved = np.zeros(scan.shape, bool)
+        unresolved[r, c] = True
+        params = self.coarse_params or default_coarse_params(scan)
+        baseline = noise_baseline(self.range_sigma(scan), params.veg_sigma)
+        smooth = unresolved & ring_surface(scan.slot_xyz(), scan.valid, scan.ranges, baseline, HALFWAY_DEG, unresolved)
+        vertical = np.abs(coarse.sv) < HALFWAY_DEG
+        labels[smooth] = np.where(vertical[smooth], L.VERTICAL, L.HORIZONTAL)
 
     def level_sweep(self, scan: Scan) -> tuple[Scan, np.ndarray | None]:
         """The sweep with its slot coordinates turned so that its ground is level, and the
@@ -205,6 +288,7 @@ class OnlineDetector:
         heights = self.ground.line_heights if self.per_line_height else self.ground.height
         line_heights = self.ground.line_heights
         column = None  # the ground labels' column ground (column_ground_all), made beside the cars
+        noisy = None  # ([car test's, labels' regime masks], codes over the noise baseline): noise_regime_codes
         more_ground = self.column_ground_all
         if spinning and line_heights is None:  # columns too short for Sec. 5 (a): the column profile
             ground, line_heights, heights = column_ground(scan, coarse.lines)
@@ -225,13 +309,21 @@ class OnlineDetector:
                 return curbs
 
             def spinning_cars() -> SpinningCars:
+                nonlocal noisy
                 sp = self.spinning_params
                 gap = (
                     float(np.degrees(np.median(np.abs(np.diff(np.sort(scan.sensor.altitude))))))
                     if scan.shape[0] > 1
                     else 0.0
                 )
-                if sp.vegetation_step > 0 and gap < sp.vegetation_gap:  # step 6's vegetation share (spinning.py)
+                if sp.vegetation_noise or self.noise_labels:
+                    veg_sigma = (self.coarse_params or default_coarse_params(scan)).veg_sigma
+                    noisy = self.noise_regime_codes(scan, coarse, ground, (sp.vegetation_regime, veg_sigma))
+                if sp.vegetation_noise:  # step 6's vegetation share (spinning.py) over the noise baseline
+                    veg = coarse.codes == L.VEGETATION
+                    if noisy is not None:
+                        veg = np.where(noisy[0][0], noisy[1] == L.VEGETATION, veg)
+                elif sp.vegetation_step > 0 and gap < sp.vegetation_gap:
                     veg_params = CoarseParams(min_step=sp.vegetation_step, centred=True)
                     veg = coarse_classify(scan, veg_params, t_prime=False).codes == L.VEGETATION
                 else:
@@ -252,6 +344,10 @@ class OnlineDetector:
                 b["center"] = (R.T @ np.asarray(b["center"], dtype=np.float64)).tolist()
         self.last_cars = cars
         labels = coarse.codes.copy()
+        if self.noise_labels and noisy is not None:
+            labels[noisy[0][1]] = noisy[1][noisy[0][1]]
+        if spinning and self.ring_labels:
+            self.ring_relabel(scan, labels, coarse)
         labels[ground] = L.GROUND
         if column is not None:
             labels[column] = L.GROUND
