@@ -120,11 +120,13 @@ def ring_surface(
     max_offset: int = 4,
 ) -> np.ndarray:
     """Per slot: whether the return lies on a smooth surface along its ring (Sec. 3's line
-    statistic turned along the ring): the steps to the returns ``k`` columns before and after it
-    turn by less than ``max_turn_deg``, with ``k`` the fewest columns (at most ``max_offset``) that
-    put the next return at least ``baseline`` away (``range x`` the column step; closer returns
-    differ by their range noise), and both steps shorter than three times that spacing (one
-    surface, no edge between them). Rows are rings; the columns wrap around.
+    statistic turned along the ring): the steps to the nearest returns at least ``k`` columns before
+    and after it turn by less than ``max_turn_deg``, with ``k`` the fewest columns that put them at
+    least ``baseline`` apart (``range x`` the column step; closer returns differ by their range
+    noise); missing returns between are skipped (the paper's M state: dark paint, glass), over at
+    most ``max_offset`` columns each way, and both steps must be shorter than three times the
+    spacing of the columns they span (one surface, no edge between them). Rows are rings; the
+    columns wrap around.
 
     Parameters
     ----------
@@ -154,13 +156,20 @@ def ring_surface(
         return out
     step = np.asarray(ranges, dtype=np.float64)[r, c] * (2.0 * np.pi / cols)
     k = np.clip(np.ceil(baseline / np.maximum(step, 1e-9)), 1, max_offset).astype(np.int64)
-    cb, ca = (c - k) % cols, (c + k) % cols
+    ends = []
+    for sign in (-1, 1):  # the nearest valid return at least k columns away on each side
+        off = np.zeros(len(r), np.int64)
+        for j in range(max_offset, 0, -1):
+            hit = (j >= k) & valid[r, (c + sign * j) % cols]
+            off[hit] = j
+        ends.append(off)
+    before, after = ends
+    ok = (before > 0) & (after > 0)
     p = np.asarray(xyz[r, c], dtype=np.float64)
-    d1 = p - xyz[r, cb]
-    d2 = xyz[r, ca] - p
+    d1 = p - xyz[r, (c - before) % cols]
+    d2 = xyz[r, (c + after) % cols] - p
     n1, n2 = np.linalg.norm(d1, axis=1), np.linalg.norm(d2, axis=1)
-    reach = 3.0 * k * step
-    ok = valid[r, cb] & valid[r, ca] & (n1 < reach) & (n2 < reach) & (n1 > 0) & (n2 > 0)
+    ok &= (n1 < 3.0 * before * step) & (n2 < 3.0 * after * step) & (n1 > 0) & (n2 > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         cos = np.einsum("ij,ij->i", d1, d2) / (n1 * n2)
     out[r, c] = ok & (cos > np.cos(np.radians(max_turn_deg)))

@@ -128,3 +128,19 @@ def test_coarse_classify_on_some_lines_only():
     assert (part.codes[~chosen] == 0).all() and (full.codes[~chosen & scan.valid] > 0).all()
     with pytest.raises(ValueError, match="one flag per scan line"):
         coarse_classify(scan, only=only[:-1])
+
+
+def test_ring_surface_skips_missing_returns():
+    """A straight wall with every second return missing (dark paint): the nearest returns two columns away
+    each side still make one surface; with nothing within ``max_offset`` columns there is no test."""
+    cols = 1024
+    step = 2.0 * np.pi / cols * 10.0
+    xyz = np.stack([np.full(cols, 10.0), np.arange(cols) * step, np.zeros(cols)], axis=1)[None]
+    ranges = np.full((1, cols), 10.0)
+    valid = np.ones((1, cols), bool)
+    valid[0, 1::2] = False
+    got = ring_surface(xyz, valid, ranges, 0.05, 45.0)
+    assert got[0, 2:-2:2].all() and not got[0, 1::2].any()
+    sparse = np.zeros((1, cols), bool)
+    sparse[0, ::8] = True
+    assert not ring_surface(xyz, sparse, ranges, 0.05, 45.0, max_offset=4).any()
