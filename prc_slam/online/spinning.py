@@ -160,6 +160,10 @@ class SpinningCarParams:
     # step 5: a segment's bottom measured less the slot spacing up its column below each return (range x the gap
     # to the next beam down), where the object may go on unseen (False: from the return itself)
     bottom_gap: bool = True
+    # step 5: the roof test's allowance above a segment's highest return reaches up to the next beam with a return
+    # across beams that returned nothing though they point at the ground within the sweep's range (glass, dark
+    # paint: a car's window band seen from beside it), capped at max_top_gap (False: the next beam's gap)
+    missing_top: bool = True
 
 
 @njit(cache=True, nogil=True)
@@ -770,6 +774,41 @@ def segment_tops(seg, n, height, vegetation):
     return top_at, cnt, veg.astype(np.float64)
 
 
+def missing_top_gaps(
+    valid: np.ndarray, alt: np.ndarray, gaps: np.ndarray, mount: float, max_range: float
+) -> np.ndarray:
+    """Per slot (rows in elevation order, lowest first): the elevation (rad) from its beam up to the next
+    beam of its column with a return, across beams that returned nothing although they point down
+    enough to meet the ground within ``max_range`` from ``mount`` above it (they met a surface that
+    sent nothing back); where a beam in between could have passed into the sky (or none lies above),
+    the gap to the next beam, ``gaps`` (rows,).
+
+    Parameters
+    ----------
+    valid : ndarray of bool, shape (rows, cols)
+    alt : ndarray, shape (rows,)
+        Beam elevations (rad), ascending.
+    gaps : ndarray, shape (rows,)
+        ``alt[r + 1] - alt[r]`` (0 for the highest beam).
+    mount : float
+        Sensor height above the ground (m).
+    max_range : float
+        Farthest return of the sweep (m).
+    """
+    rows, cols = valid.shape
+    if alt.shape != (rows,) or gaps.shape != (rows,):
+        raise ValueError(f"alt {alt.shape} and gaps {gaps.shape} must hold one value per row ({rows})")
+    with np.errstate(divide="ignore"):
+        reach = np.where(alt < 0, mount / np.tan(-np.minimum(alt, -1e-9)), np.inf)
+    should_hit = (alt < 0) & (reach < max_range)  # per row
+    out = np.empty((rows, cols))
+    above = np.full(cols, np.nan)  # elevation of the next beam up with a return, across should-hit misses
+    for r in range(rows - 1, -1, -1):
+        out[r] = np.where(np.isfinite(above), above - alt[r], gaps[r])
+        above = np.where(valid[r], alt[r], above if should_hit[r] else np.nan)
+    return out
+
+
 def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation, p, floor=None, resolved=None):
     """Steps 4-6 on the segments 1..n of ``seg_o`` (rows in elevation order): the accepted mask
     per segment (index 0 unused, False) and the features behind it."""
@@ -782,7 +821,7 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     if resolved is not None:  # the share over the returns the column statistic resolves, if enough of them
         cnt_all = segment_counts(seg_o, n, resolved)
         veg = np.where(cnt_all >= p.min_points, veg, 0.0)
-    top_gap = rng.ravel()[top_at] * np.abs(gaps[top_at // cols])
+    top_gap = rng.ravel()[top_at] * np.abs(gaps.ravel()[top_at] if gaps.ndim == 2 else gaps[top_at // cols])
     veg_share = veg / np.maximum(cnt_all, 1)
     roof = hhi + np.minimum(top_gap, p.max_top_gap)
     ok = (
@@ -935,6 +974,14 @@ def detect_cars_spinning(
     gaps = np.empty(rows)
     gaps[:-1] = np.diff(alt) if rows > 1 else 0.0
     gaps[-1] = 0.0
+    top_gaps = gaps
+    if p.missing_top and rows > 1:
+        # above a segment's highest return, beams that return nothing although they would meet the ground within
+        # the sweep's range met a surface that sent nothing back (glass, dark paint): the roof test allows for the
+        # gap up to the next beam with a return, not just the next beam (step 5)
+        zg_valid = zg[np.isfinite(zg)]
+        mount = -float(np.median(zg_valid)) if len(zg_valid) else 0.0
+        top_gaps = missing_top_gaps(o_valid, alt, gaps, mount, float(scan.ranges.max()))
     floor = None
     if p.hidden_floor:
         # a narrow field of view (an OS2's lowest beam at -11.25 deg passes 0.9 m above the road 5 m
@@ -960,9 +1007,9 @@ def detect_cars_spinning(
         local_gap = np.abs(np.concatenate([gaps[:-1], gaps[-2:-1]]))
         resolved = (rng * local_gap[:, None] <= p.veg_resolution) & o_valid
         veg_o = veg_o & resolved
-    ok, feats = _judge(seg_o, n, high_touch, tops, o_xyz, h_o, o_valid, rng, gaps, veg_o, p, floor, resolved)
+    ok, feats = _judge(seg_o, n, high_touch, tops, o_xyz, h_o, o_valid, rng, top_gaps, veg_o, p, floor, resolved)
     inst_o, merged = _merge_grazing(
-        seg_o, n, ok, feats["bottom"], feats["roof"], high, alt, o_xyz, h_o, o_valid, rng, gaps, veg_o, p, floor,
+        seg_o, n, ok, feats["bottom"], feats["roof"], high, alt, o_xyz, h_o, o_valid, rng, top_gaps, veg_o, p, floor,
         resolved,
     )  # fmt: skip
     if p.down_to > 0:

@@ -144,3 +144,20 @@ def test_ring_surface_skips_missing_returns():
     sparse = np.zeros((1, cols), bool)
     sparse[0, ::8] = True
     assert not ring_surface(xyz, sparse, ranges, 0.05, 45.0, max_offset=4).any()
+
+
+def test_roof_allowance_across_beams_that_returned_nothing():
+    """Beams at -0.2, -0.1, -0.05, +0.05 rad, 2 m up, farthest return 30 m: the -0.1 rad beam meets the ground
+    19.9 m out and must have met something, the -0.05 rad beam only 40 m out (beyond the sweep's range) and the
+    +0.05 rad beam never. Above a return on the lowest beam, a miss on the -0.1 rad beam stretches the gap to the
+    next return (0.15 rad); a miss on the -0.05 rad beam too leaves the plain gap (0.1 rad)."""
+    from prc_slam.online.spinning import missing_top_gaps
+
+    alt = np.array([-0.2, -0.1, -0.05, 0.05])
+    gaps = np.array([0.1, 0.05, 0.1, 0.0])
+    valid = np.array([[1, 1, 1], [0, 0, 1], [1, 0, 1], [1, 1, 1]], bool)
+    out = missing_top_gaps(valid, alt, gaps, 2.0, 30.0)
+    np.testing.assert_allclose(out[0], [0.15, 0.1, 0.1])
+    np.testing.assert_allclose(out[3], [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="one value per row"):
+        missing_top_gaps(valid, alt[:3], gaps, 2.0, 30.0)
