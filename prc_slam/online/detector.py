@@ -328,7 +328,9 @@ class OnlineDetector:
                     veg = coarse_classify(scan, veg_params, t_prime=False).codes == L.VEGETATION
                 else:
                     veg = coarse.codes == L.VEGETATION
-                return detect_cars_spinning(scan, ground, lines, line_heights, veg, self.spinning_params, zg)
+                if R is not None and sp.missing_top:  # a levelled sweep's beams no longer point at the sensor's
+                    sp = dataclasses.replace(sp, missing_top=False)  # elevations: where they meet the ground is unknown
+                return detect_cars_spinning(scan, ground, lines, line_heights, veg, sp, zg)
 
             def curbs_and_column() -> tuple[CurbResult, np.ndarray | None]:
                 col = column_ground(scan, lines)[0] if more_ground else None

@@ -809,9 +809,13 @@ def missing_top_gaps(
     return out
 
 
-def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation, p, floor=None, resolved=None):
+def _judge(
+    seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation, p, floor=None, resolved=None, top_gaps=None
+):
     """Steps 4-6 on the segments 1..n of ``seg_o`` (rows in elevation order): the accepted mask
-    per segment (index 0 unused, False) and the features behind it."""
+    per segment (index 0 unused, False) and the features behind it. The roof test allows for the
+    gap above each segment's highest return: ``gaps`` per row (to the next beam), or ``top_gaps``
+    per slot (:func:`missing_top_gaps`); the feature ``roof_next`` is the roof with the next beam's gap."""
     cnt, hlo, hhi, top90, length, width, thick, rough, n_rough = segment_features(
         seg_o, n, xyz, height, valid, p.ring_baseline, p.min_area, p.min_points, p.max_top, p.max_bottom, floor
     )
@@ -821,7 +825,8 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     if resolved is not None:  # the share over the returns the column statistic resolves, if enough of them
         cnt_all = segment_counts(seg_o, n, resolved)
         veg = np.where(cnt_all >= p.min_points, veg, 0.0)
-    top_gap = rng.ravel()[top_at] * np.abs(gaps.ravel()[top_at] if gaps.ndim == 2 else gaps[top_at // cols])
+    next_gap = rng.ravel()[top_at] * np.abs(gaps[top_at // cols])
+    top_gap = next_gap if top_gaps is None else rng.ravel()[top_at] * np.abs(top_gaps.ravel()[top_at])
     veg_share = veg / np.maximum(cnt_all, 1)
     roof = hhi + np.minimum(top_gap, p.max_top_gap)
     ok = (
@@ -842,13 +847,15 @@ def _judge(seg_o, n, high_touch, tops, xyz, height, valid, rng, gaps, vegetation
     feats = dict(
         points=cnt, bottom=hlo, top=hhi, top90=top90, length=length, width=width, thickness=thick, roughness=rough,
         high_share=share, ring_triples=n_rough, vegetation=veg_share, roof=roof,
+        roof_next=hhi + np.minimum(next_gap, p.max_top_gap),
     )  # fmt: skip
     return ok, feats
 
 
 def _merge_grazing(
-    seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rng, gaps, vegetation, p, floor=None, resolved=None
-):
+    seg_o, n, ok, bottom, roof, high, alt, xyz, height, valid, rng, gaps, vegetation, p, floor=None, resolved=None,
+    top_gaps=None,
+):  # fmt: skip
     """Step 5b: a face (a segment standing on the ground, its lowest return within ``max_bottom``,
     but too low for a car: ``roof``, its top plus the beam gap allowance, under ``min_top``) and
     the segments above it (a roof, a bonnet) linked to it across a grazing surface on at least
@@ -889,7 +896,7 @@ def _merge_grazing(
         seg_g, g, valid, high, xyz, rng, alt, p.min_gate, p.gate_factor, p.max_gate, height, p.top_floor,
         p.top_width, p.high_steep, p.top_height,
     )  # fmt: skip
-    ok_g, _ = _judge(seg_g, g, ht_g, tops_g, xyz, height, valid, rng, gaps, vegetation, p, floor, resolved)
+    ok_g, _ = _judge(seg_g, g, ht_g, tops_g, xyz, height, valid, rng, gaps, vegetation, p, floor, resolved, top_gaps)
     # final ids: accepted groups first, then accepted segments outside an accepted group
     take_g = ok_g[gid] & multi
     alone = ok & ~take_g
@@ -974,7 +981,7 @@ def detect_cars_spinning(
     gaps = np.empty(rows)
     gaps[:-1] = np.diff(alt) if rows > 1 else 0.0
     gaps[-1] = 0.0
-    top_gaps = gaps
+    top_gaps = None
     if p.missing_top and rows > 1:
         # above a segment's highest return, beams that return nothing although they would meet the ground within
         # the sweep's range met a surface that sent nothing back (glass, dark paint): the roof test allows for the
@@ -1007,10 +1014,13 @@ def detect_cars_spinning(
         local_gap = np.abs(np.concatenate([gaps[:-1], gaps[-2:-1]]))
         resolved = (rng * local_gap[:, None] <= p.veg_resolution) & o_valid
         veg_o = veg_o & resolved
-    ok, feats = _judge(seg_o, n, high_touch, tops, o_xyz, h_o, o_valid, rng, top_gaps, veg_o, p, floor, resolved)
+    ok, feats = _judge(
+        seg_o, n, high_touch, tops, o_xyz, h_o, o_valid, rng, gaps, veg_o, p, floor, resolved, top_gaps
+    )  # fmt: skip
+    # step 5b's faces are too low for a car by the next beam's gap (their roof, seen or not, is what a merge adds)
     inst_o, merged = _merge_grazing(
-        seg_o, n, ok, feats["bottom"], feats["roof"], high, alt, o_xyz, h_o, o_valid, rng, top_gaps, veg_o, p, floor,
-        resolved,
+        seg_o, n, ok, feats["bottom"], feats["roof_next"], high, alt, o_xyz, h_o, o_valid, rng, gaps, veg_o, p,
+        floor, resolved, top_gaps,
     )  # fmt: skip
     if p.down_to > 0:
         inst_o = grow_down(inst_o, o_valid, o_xyz, h_down[by_elevation], alt, p.down_to, p.min_gate)
