@@ -29,7 +29,8 @@ and the paper section each follows or where it departs:
    20 sweeps, seeds 0 / 1, 0.081 / 0.119 % -> 0.020 / 0.036 % of the points called vehicle,
    vlp16 forest 0.34 -> 0.08 %; KITTI P 0.858 -> 0.874, recall and cars found unchanged.
 5. Contextual truth 3 (Sec. 3): a car's top lies at least ``min_top`` above the ground (less the
-   beam gap above its highest return, at most ``max_top_gap``), 90 % of its returns lie at most
+   beam gap above its highest return, at most ``max_top_gap``; across beams above it that returned
+   nothing though they would meet the ground within the sweep's range, ``missing_top``), 90 % of its returns lie at most
    ``max_top`` above it, its lowest return within ``max_bottom`` of it (cars stand on the
    ground; less the slot spacing below each return, range x the gap to the next beam down, which
    missed the object: ``bottom_gap``), its footprint (the least-area rectangle over 18 headings,
@@ -55,7 +56,9 @@ and the paper section each follows or where it departs:
    between successive returns at least ``ring_baseline`` apart (closer ones differ by their range
    noise). A segment whose median exceeds ``max_roughness``, which shows fewer than
    ``min_ring_triples`` such triples (no run along a ring: a bush or a trunk seen edge on), or of
-   which the coarse classifier (Sec. 4) calls more than ``max_vegetation`` vegetation, is no car.
+   which the coarse classifier (Sec. 4) calls more than ``max_vegetation`` vegetation, is no car
+   (its calls judged again over the baseline the sweep's range noise asks for where that noise turns
+   its successive steps by ``vegetation_regime`` or more: :mod:`prc_slam.online.noise`).
    (The Fourier test needs longer runs than the 5-30 returns a ring gives per car at range.)
 
 7. Car returns down to the ground (Sec. 7, the paper's cars start at the ground): below each

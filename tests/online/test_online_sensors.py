@@ -7,7 +7,8 @@ code before the fine-beam changes:
 - ``os2-128`` (128 beams over +-11.25 deg): step 6's vegetation share came from the coarse
   classifier's successive differences up a column, and at 0.18 deg between beams a car's face
   has returns 3 cm apart at 10 m, the range noise: cars were called vegetation (seed 1 recall
-  0.13). The share is now taken over a 0.1 m baseline (``SpinningCarParams.vegetation_step``).
+  0.13). The share is now taken over a baseline (``SpinningCarParams.vegetation_step``, 0.1 m; by
+  default the one the sweep's own range noise asks for, ``vegetation_noise``).
   Its lowest beam passes 0.9 m above the road 5 m out, so a near car's lowest return was above
   step 5's ``max_bottom``; the bottom is now measured from where the lowest beam passes
   (``hidden_floor``). Seed 1 recall 0.13 -> 0.90, seed 2 0.51 -> 0.73. The baseline applies only
