@@ -10,8 +10,15 @@ noise of ``sigma`` per coordinate (``sqrt(2) sigma`` on a difference) turns by u
 ``atan(sqrt(2) sigma / s)``; it stays within the states' spread when
 ``s >= sqrt(2) sigma / tan(veg_sigma)`` (:func:`noise_baseline`): 0.117 m at 3 cm, 0.078 m at
 2 cm, 0.044 m at KITTI's 1.1 cm. Returns whose column spacing is under that baseline lie in the
-noise regime (:func:`noise_regime`), where the classifier takes its steps over the baseline
-(``CoarseParams.min_step``) instead of to the next return.
+noise regime (:func:`noise_regime`); there :class:`~prc_slam.online.detector.OnlineDetector`
+judges the classifier's vegetation calls again with its steps taken over the baseline
+(``CoarseParams.min_step``) instead of to the next return (``noise_labels``; step 6 of
+:mod:`prc_slam.online.spinning` does so where the noise turns the steps by its own
+``vegetation_regime``, 30 deg).
+
+Where a column does not resolve a surface at all (its returns farther apart than
+``SpinningCarParams.veg_resolution``) the ring still may: :func:`ring_surface` tells a smooth surface
+along the ring (``ring_labels``).
 
 The noise is measured on the sweep itself (:func:`range_noise`), not read from a data sheet: along a
 ring, three successive returns on one surface have ranges whose second difference is the noise
