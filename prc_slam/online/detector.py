@@ -205,12 +205,18 @@ class OnlineDetector:
         baseline = noise_baseline(sigma, params.veg_sigma)
         if baseline <= params.min_step:
             return None
-        spacing = column_spacing(scan.ranges, scan.sensor.altitude)
-        keep = (coarse.codes == L.VEGETATION) & ~ground
-        masks = [keep & (spacing < noise_baseline(sigma, a)) for a in regimes_deg]
-        only = np.logical_or.reduce(masks).ravel()[coarse.lines].any(axis=1)
-        if not only.any():
+        r, c = np.nonzero((coarse.codes == L.VEGETATION) & ~ground)
+        gap = column_spacing(np.ones((scan.shape[0], 1)), scan.sensor.altitude)[:, 0]  # rad per row
+        spacing = scan.ranges[r, c] * gap[r]
+        masks = []
+        for angle in regimes_deg:
+            m = np.zeros(scan.shape, bool)
+            under = spacing < noise_baseline(sigma, angle)
+            m[r[under], c[under]] = True
+            masks.append(m)
+        if not any(m.any() for m in masks):
             return None
+        only = np.logical_or.reduce(masks).ravel()[coarse.lines].any(axis=1)
         base = dataclasses.replace(params, min_step=baseline, centred=True)
         return masks, coarse_classify(scan, base, t_prime=False, only=only).codes
 

@@ -778,7 +778,7 @@ def segment_tops(seg, n, height, vegetation):
 
 
 def missing_top_gaps(
-    valid: np.ndarray, alt: np.ndarray, gaps: np.ndarray, mount: float, max_range: float
+    valid: np.ndarray, alt: np.ndarray, gaps: np.ndarray, mount: float, max_range: float, at: np.ndarray | None = None
 ) -> np.ndarray:
     """Per slot (rows in elevation order, lowest first): the elevation (rad) from its beam up to the next
     beam of its column with a return, across beams that returned nothing although they point down
@@ -797,19 +797,28 @@ def missing_top_gaps(
         Sensor height above the ground (m).
     max_range : float
         Farthest return of the sweep (m).
+    at : ndarray of int, optional
+        Flat slot indices: the gaps of those slots only, shape ``at.shape`` (default: every slot,
+        shape (rows, cols)).
     """
     rows, cols = valid.shape
     if alt.shape != (rows,) or gaps.shape != (rows,):
         raise ValueError(f"alt {alt.shape} and gaps {gaps.shape} must hold one value per row ({rows})")
-    with np.errstate(divide="ignore"):
-        reach = np.where(alt < 0, mount / np.tan(-np.minimum(alt, -1e-9)), np.inf)
+    reach = np.where(alt < 0, mount / np.tan(-np.minimum(alt, -1e-9)), np.inf)
     should_hit = (alt < 0) & (reach < max_range)  # per row
-    out = np.empty((rows, cols))
-    above = np.full(cols, np.nan)  # elevation of the next beam up with a return, across should-hit misses
-    for r in range(rows - 1, -1, -1):
-        out[r] = np.where(np.isfinite(above), above - alt[r], gaps[r])
-        above = np.where(valid[r], alt[r], above if should_hit[r] else np.nan)
-    return out
+    idx = np.arange(rows * cols) if at is None else np.asarray(at, dtype=np.int64).ravel()
+    r0, c = idx // cols, idx % cols
+    out = gaps[r0].astype(np.float64)
+    r = r0 + 1
+    live = r < rows  # walking up across misses that must have met a surface
+    while live.any():
+        rr = np.minimum(r, rows - 1)
+        hit = live & valid[rr, c]
+        out[hit] = alt[rr[hit]] - alt[r0[hit]]
+        live &= ~hit & should_hit[rr]
+        r = r + 1
+        live &= r < rows
+    return out.reshape((rows, cols) if at is None else np.shape(at))
 
 
 def _judge(
@@ -817,8 +826,9 @@ def _judge(
 ):
     """Steps 4-6 on the segments 1..n of ``seg_o`` (rows in elevation order): the accepted mask
     per segment (index 0 unused, False) and the features behind it. The roof test allows for the
-    gap above each segment's highest return: ``gaps`` per row (to the next beam), or ``top_gaps``
-    per slot (:func:`missing_top_gaps`); the feature ``roof_next`` is the roof with the next beam's gap."""
+    gap above each segment's highest return: ``gaps`` per row (to the next beam), or ``top_gaps``, a
+    function of flat slot indices (:func:`missing_top_gaps`); the feature ``roof_next`` is the roof with
+    the next beam's gap."""
     cnt, hlo, hhi, top90, length, width, thick, rough, n_rough = segment_features(
         seg_o, n, xyz, height, valid, p.ring_baseline, p.min_area, p.min_points, p.max_top, p.max_bottom, floor
     )
@@ -829,7 +839,7 @@ def _judge(
         cnt_all = segment_counts(seg_o, n, resolved)
         veg = np.where(cnt_all >= p.min_points, veg, 0.0)
     next_gap = rng.ravel()[top_at] * np.abs(gaps[top_at // cols])
-    top_gap = next_gap if top_gaps is None else rng.ravel()[top_at] * np.abs(top_gaps.ravel()[top_at])
+    top_gap = next_gap if top_gaps is None else rng.ravel()[top_at] * np.abs(top_gaps(top_at))
     veg_share = veg / np.maximum(cnt_all, 1)
     roof = hhi + np.minimum(top_gap, p.max_top_gap)
     ok = (
@@ -989,9 +999,14 @@ def detect_cars_spinning(
         # above a segment's highest return, beams that return nothing although they would meet the ground within
         # the sweep's range met a surface that sent nothing back (glass, dark paint): the roof test allows for the
         # gap up to the next beam with a return, not just the next beam (step 5)
-        zg_valid = zg[np.isfinite(zg)]
-        mount = -float(np.median(zg_valid)) if len(zg_valid) else 0.0
-        top_gaps = missing_top_gaps(o_valid, alt, gaps, mount, float(scan.ranges.max()))
+        heights = np.asarray(line_height, dtype=np.float64)
+        heights = heights[np.isfinite(heights)]
+        mount = -float(np.median(heights)) if len(heights) else 0.0
+        far = float(scan.ranges.max())
+
+        def top_gaps(at: np.ndarray) -> np.ndarray:  # at the segments' highest returns only
+            return missing_top_gaps(o_valid, alt, gaps, mount, far, at)
+
     floor = None
     if p.hidden_floor:
         # a narrow field of view (an OS2's lowest beam at -11.25 deg passes 0.9 m above the road 5 m
