@@ -208,15 +208,18 @@ class OnlineDetector:
         r, c = np.nonzero((coarse.codes == L.VEGETATION) & ~ground)
         gap = column_spacing(np.ones((scan.shape[0], 1)), scan.sensor.altitude)[:, 0]  # rad per row
         spacing = scan.ranges[r, c] * gap[r]
-        masks = []
+        masks, cols = [], np.zeros(scan.shape[1], bool)
         for angle in regimes_deg:
             m = np.zeros(scan.shape, bool)
             under = spacing < noise_baseline(sigma, angle)
             m[r[under], c[under]] = True
+            cols[c[under]] = True
             masks.append(m)
-        if not any(m.any() for m in masks):
+        if not cols.any():
             return None
-        only = np.logical_or.reduce(masks).ravel()[coarse.lines].any(axis=1)
+        only = cols  # a spinning sensor's scan line i is its column i (coarse.scan_lines)
+        if coarse.lines.shape[0] != scan.shape[1]:  # any other layout of lines
+            only = np.logical_or.reduce(masks).ravel()[coarse.lines].any(axis=1)
         base = dataclasses.replace(params, min_step=baseline, centred=True)
         return masks, coarse_classify(scan, base, t_prime=False, only=only).codes
 
@@ -232,13 +235,11 @@ class OnlineDetector:
             r, c = r[far], c[far]
         if len(r) == 0:
             return
-        unresolved = np.zeros(scan.shape, bool)
-        unresolved[r, c] = True
         params = self.coarse_params or default_coarse_params(scan)
         baseline = noise_baseline(self.range_sigma(scan), params.veg_sigma)
-        smooth = unresolved & ring_surface(scan.slot_xyz(), scan.valid, scan.ranges, baseline, HALFWAY_DEG, unresolved)
-        vertical = np.abs(coarse.sv) < HALFWAY_DEG
-        labels[smooth] = np.where(vertical[smooth], L.VERTICAL, L.HORIZONTAL)
+        smooth = ring_surface(scan.slot_xyz(), scan.valid, scan.ranges, baseline, HALFWAY_DEG, (r, c))[r, c]
+        r, c = r[smooth], c[smooth]
+        labels[r, c] = np.where(np.abs(coarse.sv[r, c]) < HALFWAY_DEG, L.VERTICAL, L.HORIZONTAL)
 
     def level_sweep(self, scan: Scan) -> tuple[Scan, np.ndarray | None]:
         """The sweep with its slot coordinates turned so that its ground is level, and the

@@ -143,7 +143,7 @@ def ring_surface(
     baseline : float
         Least step (m), e.g. :func:`noise_baseline` of the sweep's range noise.
     max_turn_deg : float
-    at : ndarray of bool, shape (rows, cols), optional
+    at : ndarray of bool, shape (rows, cols), or a pair of index arrays (rows, columns), optional
         Only these slots are tested (the others are False).
     max_offset : int
 
@@ -157,8 +157,12 @@ def ring_surface(
     if max_offset < 1:
         raise ValueError(f"max_offset must be >= 1, got {max_offset}")
     out = np.zeros((rows, cols), bool)
-    sel = valid if at is None else (valid & at)
-    r, c = np.nonzero(sel)
+    if isinstance(at, tuple):
+        r, c = (np.asarray(a, dtype=np.int64) for a in at)
+        keep = valid[r, c]
+        r, c = r[keep], c[keep]
+    else:
+        r, c = np.nonzero(valid if at is None else (valid & at))
     if len(r) == 0:
         return out
     step = np.asarray(ranges, dtype=np.float64)[r, c] * (2.0 * np.pi / cols)

@@ -82,6 +82,8 @@ def test_ring_surface_straight_vs_zigzag():
     only = np.zeros((1, cols), bool)
     only[0, 10] = True
     assert ring_surface(xyz, valid, ranges, 0.05, 45.0, at=only).sum() == 1
+    picked = ring_surface(xyz, valid, ranges, 0.05, 45.0, at=(np.array([0, 0]), np.array([10, 20])))
+    assert np.flatnonzero(picked[0]).tolist() == [10, 20]
 
 
 def _near_car_sweep(noise: float, seed: int = 0) -> tuple[Scan, np.ndarray]:
