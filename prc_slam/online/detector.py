@@ -295,7 +295,7 @@ class OnlineDetector:
         heights = self.ground.line_heights if self.per_line_height else self.ground.height
         line_heights = self.ground.line_heights
         column = None  # the ground labels' column ground (column_ground_all), made beside the cars
-        noisy = None  # ([car test's, labels' regime masks], codes over the noise baseline): noise_regime_codes
+        noisy = None  # ([car test's, labels' regime masks as switched on], codes over the noise baseline)
         more_ground = self.column_ground_all
         if spinning and line_heights is None:  # columns too short for Sec. 5 (a): the column profile
             ground, line_heights, heights = column_ground(scan, coarse.lines)
@@ -325,7 +325,8 @@ class OnlineDetector:
                 )
                 if sp.vegetation_noise or self.noise_labels:
                     veg_sigma = (self.coarse_params or default_coarse_params(scan)).veg_sigma
-                    noisy = self.noise_regime_codes(scan, coarse, ground, (sp.vegetation_regime, veg_sigma))
+                    regimes = (sp.vegetation_regime,) * sp.vegetation_noise + (veg_sigma,) * self.noise_labels
+                    noisy = self.noise_regime_codes(scan, coarse, ground, regimes)
                 if sp.vegetation_noise:  # step 6's vegetation share (spinning.py) over the noise baseline
                     veg = coarse.codes == L.VEGETATION
                     if noisy is not None:
@@ -354,7 +355,7 @@ class OnlineDetector:
         self.last_cars = cars
         labels = coarse.codes.copy()
         if self.noise_labels and noisy is not None:
-            labels[noisy[0][1]] = noisy[1][noisy[0][1]]
+            labels[noisy[0][-1]] = noisy[1][noisy[0][-1]]
         if spinning and self.ring_labels:
             self.ring_relabel(scan, labels, coarse)
         labels[ground] = L.GROUND
