@@ -248,18 +248,31 @@ def _shared_returns(returns: LineReturns, lines: np.ndarray, shared: int, codes:
 
 
 def coarse_classify(
-    scan: Scan, params: CoarseParams | None = None, t_prime: bool = True, only: np.ndarray | None = None
+    scan: Scan,
+    params: CoarseParams | None = None,
+    t_prime: bool = True,
+    only: np.ndarray | None = None,
+    lines: np.ndarray | None = None,
 ) -> CoarseResult:
     """Run the coarse H / V / T classifier and (``t_prime``) T' on every scan line of ``scan``.
 
     Without ``t_prime`` the result's ``t_prime`` is None: one CUSUM per return less (the
     spinning-sensor path, :mod:`prc_slam.online.spinning`, does not use T'). ``only`` (a mask
     over :func:`scan_lines`; spinning sensors): classify those lines alone, the slots of the
-    others keep code 0 (the result's ``lines`` and ``returns`` are those lines')."""
+    others keep code 0 (the result's ``lines`` and ``returns`` are those lines'). ``lines``
+    (spinning sensors): classify these ``-1``-padded runs of slots instead of the scan lines (parts
+    of columns, lowest beam first), the other slots keep code 0."""
     p = params or CoarseParams()
     xyz = scan.slot_xyz64()
     valid = scan.valid.ravel()
-    lines = scan_lines(scan)
+    if lines is not None:
+        if shared_first(scan) or only is not None:
+            raise ValueError(f"{scan.source}: coarse_classify(lines=...) needs lines that share no slot, and no only")
+        lines = np.ascontiguousarray(lines, dtype=np.int64)
+        if lines.ndim != 2 or (lines >= valid.shape[0]).any():
+            raise ValueError(f"lines must be (n, width) slot indices under {valid.shape[0]}, got shape {lines.shape}")
+    else:
+        lines = scan_lines(scan)
     if only is not None:
         if shared_first(scan):
             raise ValueError(f"{scan.source}: coarse_classify(only=...) needs lines that share no slot")

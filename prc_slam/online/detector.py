@@ -64,6 +64,9 @@ LEVEL_MIN_HEIGHT_M = 0.3
 NOISE_SWEEPS = 3
 #: ... on every this many rings (an HDL-64 sweep still gives some 15,000 triples)
 NOISE_ROW_STRIDE = 4
+#: beams below and above the returns whose vegetation calls are judged again over the noise baseline that
+#: the classifier's run of each column spans (:meth:`OnlineDetector.noise_regime_codes`)
+RUN_MARGIN = 6
 
 log = logging.getLogger("prc_slam.online")
 
@@ -208,20 +211,41 @@ class OnlineDetector:
         r, c = np.nonzero((coarse.codes == L.VEGETATION) & ~ground)
         gap = column_spacing(np.ones((scan.shape[0], 1)), scan.sensor.altitude)[:, 0]  # rad per row
         spacing = scan.ranges[r, c] * gap[r]
-        masks, cols = [], np.zeros(scan.shape[1], bool)
+        masks, any_under = [], np.zeros(len(r), bool)
         for angle in regimes_deg:
             m = np.zeros(scan.shape, bool)
             under = spacing < noise_baseline(sigma, angle)
             m[r[under], c[under]] = True
-            cols[c[under]] = True
+            any_under |= under
             masks.append(m)
-        if not cols.any():
+        if not any_under.any():
             return None
-        only = cols  # a spinning sensor's scan line i is its column i (coarse.scan_lines)
-        if coarse.lines.shape[0] != scan.shape[1]:  # any other layout of lines
-            only = np.logical_or.reduce(masks).ravel()[coarse.lines].any(axis=1)
         base = dataclasses.replace(params, min_step=baseline, centred=True)
-        return masks, coarse_classify(scan, base, t_prime=False, only=only).codes
+        return masks, coarse_classify(
+            scan, base, t_prime=False, lines=self._column_runs(scan, coarse, r, c, any_under)
+        ).codes
+
+    @staticmethod
+    def _column_runs(scan: Scan, coarse: CoarseResult, r: np.ndarray, c: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """The runs of the columns of slots ``(r, c)[keep]`` (a spinning sensor's scan line i is its
+        column i, lowest beam first: :func:`~prc_slam.online.coarse.scan_lines`) from :data:`RUN_MARGIN`
+        beams below the lowest such slot to as many above the highest, ``-1``-padded: what the
+        classifier needs to judge those slots again (its CUSUM settles within a few returns)."""
+        rows = scan.shape[0]
+        rank = np.empty(rows, np.int64)
+        rank[np.argsort(scan.sensor.altitude, kind="stable")] = np.arange(rows)
+        col, pos = c[keep], rank[r[keep]]
+        cols = np.unique(col)
+        lo = np.full(scan.shape[1], rows, np.int64)
+        hi = np.full(scan.shape[1], -1, np.int64)
+        np.minimum.at(lo, col, pos)
+        np.maximum.at(hi, col, pos)
+        lo = np.maximum(lo[cols] - RUN_MARGIN, 0)
+        hi = np.minimum(hi[cols] + RUN_MARGIN, rows - 1)
+        width = int((hi - lo).max()) + 1
+        j = lo[:, None] + np.arange(width)[None, :]
+        runs = coarse.lines[cols[:, None], np.minimum(j, rows - 1)]
+        return np.where(j <= hi[:, None], runs, -1)
 
     def ring_relabel(self, scan: Scan, labels: np.ndarray, coarse: CoarseResult) -> None:
         """Vegetation returns (``labels``, in place) that their column does not resolve and that lie
