@@ -553,33 +553,19 @@ class KissOdometry(GuardedOdometry):
         frame_time: float | None,
         pose: np.ndarray,
         update_map: bool = True,
-        labels: np.ndarray | None = None,
-    ) -> np.ndarray:
+    ) -> None:
         """Take ``pose`` as this frame's pose without registering it: the map (unless
         ``update_map`` is False), the adaptive threshold and the constant-velocity model go on from
         it, as after :meth:`register`. For an odometry that registered the frame otherwise
         (:class:`~prc_slam.odometry.classaware.ClassAwareOdometry` with its anchors) and keeps
-        this one in step to fall back on. With ``labels`` (one code per point), ``update_map``
-        and ``ground.enabled``, ``pose`` is first given the ground refinement of :meth:`register`
-        and the ground model goes on from it. Returns the pose taken."""
+        this one in step to fall back on. The ground model (``ground.enabled``) is not updated:
+        the class-aware sweeps are not refined."""
         from kiss_icp.voxelization import voxel_down_sample
 
         kiss = self.kiss
-        finite = np.isfinite(np.asarray(points)).all(axis=1)
         pts, times, _, t_ref, _ = self._prepare(points, times, frame_time)
         pts, stamps = self._deskew(pts, times, t_ref, kiss.last_delta)
         initial = kiss.last_pose @ self._predicted_motion(kiss.last_delta)
-        if update_map and self.ground is not None and labels is not None:
-            labels = np.asarray(labels)
-            if labels.shape != (len(finite),):
-                raise ValueError(f"labels of shape {labels.shape} for {len(finite)} points")
-            g = self.config.ground
-            ground = ground_points(
-                pts, labels[finite], [L.GROUND], self.config.min_range, min(g.max_range, self.config.max_range)
-            )
-            pose, matched, _ = self.ground.refine(ground, pose, kiss.adaptive_threshold.get_threshold())
-            self.ground_matches.append(int(matched))
-            self.ground.update(ground, pose)
         if update_map:
             frame = kiss.preprocessor.preprocess(pts, stamps, kiss.last_delta)
             down = voxel_down_sample(frame, self.voxel * 0.5) if len(frame) else np.zeros((0, 3))
@@ -592,7 +578,6 @@ class KissOdometry(GuardedOdometry):
         kiss.last_pose = np.array(pose, dtype=np.float64)
         self.conditioning.append(None)
         self.poses.append(self.kiss.last_pose.copy())
-        return self.kiss.last_pose.copy()
 
     def _check_correspondences(self, source: np.ndarray, guess: np.ndarray, sigma: float) -> None:
         """KISS-ICP solves its normal equations without a rank check, and a NaN from them aborts
