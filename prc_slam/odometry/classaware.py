@@ -320,7 +320,7 @@ class ClassAwareOdometry(GuardedOdometry):
         if source is not None and np.shape(source) != (len(raw),):
             raise ValueError(f"source mask of shape {np.shape(source)} for {len(raw)} points")
         chosen = np.ones(int(finite.sum()), bool) if source is None else np.asarray(source, bool)[finite]
-        given = (raw, times, frame_time, source)  # for the prc registration to fall back on
+        given = (raw, times, frame_time, source, labels)  # for the prc registration to fall back on
         pts, times, dropped, t_ref, dt = self._prepare(raw, times, frame_time)
         codes = codes[finite]
         if not is_rigid(self.last_pose) or not is_rigid(self.last_delta):
@@ -434,8 +434,9 @@ class ClassAwareOdometry(GuardedOdometry):
         step with this odometry's poses), with its conditioning and degenerate directions."""
         fb = self.fallback
         before = len(fb.degenerate_frames)
-        points, times, frame_time, source = given
-        pose = fb.register(points, times, None, frame_time, source=source)
+        points, times, frame_time, source, labels = given
+        # with the labels, prc's ground refinement too (odometry.ground): prc's registration exactly
+        pose = fb.register(points, times, labels, frame_time, source=source)
         self.conditioning.append(fb.conditioning[-1])
         self.degenerate_frames.extend(fb.degenerate_frames[before:])
         return pose

@@ -301,6 +301,7 @@ def _without(interval: tuple[float, float], holes: list[tuple[float, float]]) ->
 def warm_up_kernels(config: Config) -> None:
     """Compile (or load) the numba kernels of the filter, the deskewing and the guard before
     anything is timed."""
+    from prc_slam.odometry.ground import GroundModel
     from prc_slam.odometry.group_map import GroupVoxelMap
     from prc_slam.odometry.guard import residuals
     from prc_slam.odometry.kiss import deskew_points
@@ -313,6 +314,10 @@ def warm_up_kernels(config: Config) -> None:
     gmap = GroupVoxelMap(1.0, 100.0, 20)
     gmap.update(pts, np.zeros(64, np.int64), np.eye(4))
     residuals(pts, np.zeros(64, np.int64), *gmap.index(), 1.0, 1.0, np.eye(4))
+    if config.odometry.ground.enabled:
+        ground = GroundModel(config.odometry.ground, 100.0)
+        ground.update(pts, np.eye(4))
+        ground.refine(pts, np.eye(4), 1.0)
 
 
 def _frame_time(scan: Scan, times: np.ndarray | None = None) -> float | None:

@@ -30,7 +30,9 @@ import numpy as np
 from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 
+from prc_slam import labels as L
 from prc_slam.odometry.degeneracy import Conditioning, DegeneracyConfig, analyse
+from prc_slam.odometry.ground import GroundConfig, GroundModel, ground_points
 from prc_slam.odometry.group_map import GroupVoxelMap
 from prc_slam.odometry.guard import (
     DivergenceMonitor,
@@ -83,6 +85,7 @@ class OdometryConfig(BaseModel):
     )
     guard: GuardConfig = Field(default_factory=GuardConfig)
     degeneracy: DegeneracyConfig = Field(default_factory=DegeneracyConfig)
+    ground: GroundConfig = Field(default_factory=GroundConfig)
 
 
 @contextmanager
@@ -428,6 +431,9 @@ class KissOdometry(GuardedOdometry):
         self._init_guard()
         self._shadow = None
         self.deskewed = np.zeros((0, 3))
+        self.ground = GroundModel(self.config.ground, self.config.max_range) if self.config.ground.enabled else None
+        #: per registered frame, the ground points matched by the ground refinement (0: not refined)
+        self.ground_matches: list[int] = []
 
     # ---- KISS-ICP ----
 
@@ -450,8 +456,9 @@ class KissOdometry(GuardedOdometry):
         times : float (N,), optional
             Acquisition time per point (s), for deskewing. Without times (or with ``deskew``
             off) the frame is not deskewed.
-        labels : ignored
-            (The class-aware odometry's signature.)
+        labels : uint8 (N,), optional
+            One code per point; with ``ground.enabled``, the ground points refine the registered
+            pose's height, roll and pitch (:mod:`~prc_slam.odometry.ground`). Otherwise ignored.
         frame_time : float, optional
             The instant the frame's pose refers to (s, the clock of ``times``); default: the
             middle of the points' time span.
@@ -471,6 +478,13 @@ class KissOdometry(GuardedOdometry):
             if source.shape != (len(points),):
                 raise ValueError(f"source mask of shape {source.shape} for {len(points)} points")
             source = source[np.isfinite(np.asarray(points)).all(axis=1)]
+        if self.ground is not None and labels is not None:
+            labels = np.asarray(labels)
+            if labels.shape != (len(points),):
+                raise ValueError(f"labels of shape {labels.shape} for {len(points)} points")
+            labels = labels[np.isfinite(np.asarray(points)).all(axis=1)]
+        else:
+            labels = None
         pts, times, dropped, t_ref, dt = self._prepare(points, times, frame_time)
         if not is_rigid(kiss.last_pose) or not is_rigid(kiss.last_delta):
             raise OdometryFailure("the odometry state is not a finite rigid transform")
@@ -508,11 +522,21 @@ class KissOdometry(GuardedOdometry):
             )
         )
         check_pose(new_pose, kiss.last_pose, dt, self.config.guard, "KISS-ICP")
+        ground = None
+        if labels is not None:
+            g = self.config.ground
+            ground = ground_points(
+                pts, labels, [L.GROUND], self.config.min_range, min(g.max_range, self.config.max_range)
+            )
+            new_pose, matched, _ = self.ground.refine(ground, new_pose, sigma)
+            self.ground_matches.append(int(matched))
         groups = np.zeros(len(source), np.int64)
         new_pose = self._condition(source, groups, self._shadow, sigma, new_pose, initial_guess)
         self._health(source, groups, new_pose, sigma, dropped, -1, self._shadow)
         kiss.adaptive_threshold.update_model_deviation(np.linalg.inv(initial_guess) @ new_pose)
         kiss.local_map.update(frame_downsample, new_pose)
+        if ground is not None:
+            self.ground.update(ground, new_pose)
         t0 = time.perf_counter()
         self._shadow.update(frame_downsample, np.zeros(len(frame_downsample), np.int64), new_pose)
         self.health_ms[-1] += self._health_since(t0)
@@ -534,7 +558,8 @@ class KissOdometry(GuardedOdometry):
         ``update_map`` is False), the adaptive threshold and the constant-velocity model go on from
         it, as after :meth:`register`. For an odometry that registered the frame otherwise
         (:class:`~prc_slam.odometry.classaware.ClassAwareOdometry` with its anchors) and keeps
-        this one in step to fall back on."""
+        this one in step to fall back on. The ground model (``ground.enabled``) is not updated:
+        the class-aware sweeps are not refined."""
         from kiss_icp.voxelization import voxel_down_sample
 
         kiss = self.kiss
