@@ -432,8 +432,11 @@ class KissOdometry(GuardedOdometry):
         self._shadow = None
         self.deskewed = np.zeros((0, 3))
         self.ground = GroundModel(self.config.ground, self.config.max_range) if self.config.ground.enabled else None
-        #: per registered frame, the ground points matched by the ground refinement (0: not refined)
+        #: per frame given labels, the ground points matched by the ground refinement
         self.ground_matches: list[int] = []
+        #: frames (indices into poses) whose height, roll and pitch the ground refinement moved
+        #: (fewer than ``ground.min_matches`` matches, e.g. rough or unlabelled ground, leave a frame as registered)
+        self.ground_refined: list[int] = []
 
     # ---- KISS-ICP ----
 
@@ -528,8 +531,10 @@ class KissOdometry(GuardedOdometry):
             ground = ground_points(
                 pts, labels, [L.GROUND], self.config.min_range, min(g.max_range, self.config.max_range)
             )
-            new_pose, matched, _ = self.ground.refine(ground, new_pose, sigma)
+            new_pose, matched, refined = self.ground.refine(ground, new_pose, sigma)
             self.ground_matches.append(int(matched))
+            if refined:
+                self.ground_refined.append(len(self.poses))
         groups = np.zeros(len(source), np.int64)
         new_pose = self._condition(source, groups, self._shadow, sigma, new_pose, initial_guess)
         self._health(source, groups, new_pose, sigma, dropped, -1, self._shadow)

@@ -192,7 +192,9 @@ def test_compare_metrics_schema_and_no_ground_truth(short_drive):
 
 def test_compare_metrics_say_degenerate_frames_and_classaware_sweeps(short_drive):
     """An urban drive: no direction degenerate, and no trunk to anchor class-aware matching, so
-    prc+classaware registers every sweep as prc does (the same poses)."""
+    prc+classaware registers every sweep as prc does (the same poses, the same frames given the
+    ground refinement: every one once the ground model's cells hold enough points); raw gives no
+    labels, so it has no ground refinement to report."""
     scans = [short_drive[i] for i in range(8)]
     cfg = Config(prc=PRCConfig.preset("multibeam"), odometry=OdometryConfig(max_num_threads=1))
     m = run_compare(scans, cfg, ["raw", "prc", "prc+classaware"]).metrics()["variants"]
@@ -202,6 +204,11 @@ def test_compare_metrics_say_degenerate_frames_and_classaware_sweeps(short_drive
         assert ratios[0] is None and all(0 < r <= 1 for r in ratios[1:])  # no map before the first frame
     assert m["prc+classaware"]["classaware_frames"] == []
     assert abs(m["prc+classaware"]["ate_rmse_m"] - m["prc"]["ate_rmse_m"]) < 1e-6
+    refined = m["prc"]["ground_refined_frames"]
+    assert refined == m["prc+classaware"]["ground_refined_frames"]
+    # a ground cell needs ground.min_points (5) points, and the filter gives it about one a frame
+    assert 1 <= refined[0] <= 5 and refined == list(range(refined[0], 8))
+    assert "ground_refined_frames" not in m["raw"]
 
 
 @pytest.mark.parametrize("variant", ["raw", "prc"])
