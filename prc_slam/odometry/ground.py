@@ -312,7 +312,7 @@ class GroundModel:
 def ground_points(points: np.ndarray, labels: np.ndarray, codes: list[int], min_range: float, max_range: float):
     """The points labelled with one of ``codes`` whose distance from the sensor lies within
     ``(min_range, max_range]``."""
-    mask = np.isin(labels, np.asarray(codes, dtype=labels.dtype))
-    r2 = np.einsum("ij,ij->i", points, points)
-    mask &= (r2 > min_range * min_range) & (r2 <= max_range * max_range)
-    return points[mask]
+    mask = labels == codes[0] if len(codes) == 1 else np.isin(labels, np.asarray(codes, dtype=labels.dtype))
+    chosen = points[mask]  # the ranges of the labelled points only: a sweep's ground is a fraction of it
+    r2 = np.einsum("ij,ij->i", chosen, chosen)
+    return chosen[(r2 > min_range * min_range) & (r2 <= max_range * max_range)]
