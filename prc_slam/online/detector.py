@@ -30,7 +30,7 @@ from prc_slam.online.curb import CurbParams, CurbResult, detect_curbs
 from prc_slam.online.ground import GroundDetector, GroundParams
 from prc_slam.online.noise import (
     HALFWAY_DEG,
-    column_spacing,
+    beam_gaps,
     noise_baseline,
     range_noise,
     ring_surface,
@@ -209,7 +209,7 @@ class OnlineDetector:
         if baseline <= params.min_step:
             return None
         r, c = np.nonzero((coarse.codes == L.VEGETATION) & ~ground)
-        gap = column_spacing(np.ones((scan.shape[0], 1)), scan.sensor.altitude)[:, 0]  # rad per row
+        gap = beam_gaps(scan.sensor.altitude)
         spacing = scan.ranges[r, c] * gap[r]
         masks, any_under = [], np.zeros(len(r), bool)
         for angle in regimes_deg:
@@ -254,7 +254,7 @@ class OnlineDetector:
         r, c = np.nonzero(labels == L.VEGETATION)
         res = self.spinning_params.veg_resolution
         if res > 0 and len(r):
-            gap = column_spacing(np.ones((scan.shape[0], 1)), scan.sensor.altitude)[:, 0]  # rad per row
+            gap = beam_gaps(scan.sensor.altitude)
             far = scan.ranges[r, c] * gap[r] > res
             r, c = r[far], c[far]
         if len(r) == 0:

@@ -86,9 +86,30 @@ def noise_baseline(sigma: float, angle_sigma_deg: float) -> float:
     return float(np.sqrt(2.0) * sigma / np.tan(np.radians(angle_sigma_deg)))
 
 
+def beam_gaps(altitude: np.ndarray) -> np.ndarray:
+    """Per row, the gap (rad) from its beam to the next beam up in elevation (the highest beam: the
+    gap below it).
+
+    Parameters
+    ----------
+    altitude : ndarray, shape (rows,)
+        Beam elevations (rad), in the rows' order (any order).
+    """
+    alt = np.asarray(altitude, dtype=np.float64)
+    if len(alt) < 2:
+        return np.zeros(len(alt))
+    order = np.argsort(alt, kind="stable")
+    up = np.empty(len(alt))
+    up[:-1] = np.diff(alt[order])
+    up[-1] = up[-2]
+    gap = np.empty(len(alt))
+    gap[order] = np.abs(up)
+    return gap
+
+
 def column_spacing(ranges: np.ndarray, altitude: np.ndarray) -> np.ndarray:
-    """Per slot, ``range x`` the gap (rad) to the next beam up in elevation (the highest beam: the
-    gap below it): how far apart a column's returns lie up a surface facing the sensor.
+    """Per slot, ``range x`` the gap (rad) to the next beam up in elevation (:func:`beam_gaps`):
+    how far apart a column's returns lie up a surface facing the sensor.
 
     Parameters
     ----------
@@ -102,13 +123,7 @@ def column_spacing(ranges: np.ndarray, altitude: np.ndarray) -> np.ndarray:
         raise ValueError(f"ranges {r.shape} and altitude {alt.shape} do not match (rows, cols) / (rows,)")
     if len(alt) < 2:
         return np.zeros_like(r)
-    order = np.argsort(alt, kind="stable")
-    up = np.empty(len(alt))
-    up[:-1] = np.diff(alt[order])
-    up[-1] = up[-2]
-    gap = np.empty(len(alt))
-    gap[order] = np.abs(up)
-    return r * gap[:, None]
+    return r * beam_gaps(alt)[:, None]
 
 
 def noise_regime(ranges: np.ndarray, altitude: np.ndarray, baseline: float) -> np.ndarray:
