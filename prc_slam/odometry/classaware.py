@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam import labels as L
 from prc_slam.odometry.degeneracy import block_ratio, surface_information
+from prc_slam.odometry.ground import GroundModel, ground_points
 from prc_slam.odometry.group_map import GroupVoxelMap
 from prc_slam.odometry.guard import OdometryFailure, check_pose, is_rigid, nearest_map_point
 from prc_slam.odometry.kiss import MIN_SOURCE_POINTS, GuardedOdometry, KissOdometry, OdometryConfig, kiss_config
@@ -268,6 +269,15 @@ class ClassAwareOdometry(GuardedOdometry):
         self.classaware_frames: list[int] = []  # frames registered class-aware (all of them without fallback)
         #: per frame, the anchors' conditioning (smallest over largest information of x, y, yaw; None: not judged)
         self.anchor_ratio: list[float | None] = []
+        #: the ground refinement (``odometry.ground``) of every sweep given labels: one ground model, shared with
+        #: the prc registration it falls back on, so that both refine against the same ground
+        self.ground: GroundModel | None = None
+        self.ground_refined: list[int] = []  # frames whose height, roll and pitch it moved
+        if self.config.ground.enabled:
+            if self.fallback is not None:
+                self.ground, self.ground_refined = self.fallback.ground, self.fallback.ground_refined
+            else:
+                self.ground = GroundModel(self.config.ground, self.config.max_range)
 
     @property
     def threshold(self) -> float:
@@ -370,9 +380,17 @@ class ClassAwareOdometry(GuardedOdometry):
             self.anchor_ratio.append(None)
             return self._coast(len(source), initial, sigma, dropped)
         if self._anchored(source, source_group, initial, sigma):
-            new_pose, counts, iters = self._register_classaware(source, source_group, initial, sigma, dt)
+            ground = None
+            if self.ground is not None and labels is not None:
+                g = self.config.ground
+                ground = ground_points(
+                    pts, codes, [L.GROUND], self.config.min_range, min(g.max_range, self.config.max_range)
+                )
+            new_pose, counts, iters = self._register_classaware(source, source_group, initial, sigma, dt, ground)
             if self.fallback is not None:
                 self.fallback.follow(given[0], given[1], given[2], new_pose)
+            if ground is not None:
+                self.ground.update(ground, new_pose)
         else:
             new_pose, iters = self._register_prc(given), -1
             check_pose(new_pose, self.last_pose, dt, self.config.guard, "KISS-ICP (class-aware fallback)")
@@ -411,10 +429,18 @@ class ClassAwareOdometry(GuardedOdometry):
         return ratio >= self.config.degeneracy.ratio
 
     def _register_classaware(
-        self, source: np.ndarray, source_group: np.ndarray, initial: np.ndarray, sigma: float, dt: float
+        self,
+        source: np.ndarray,
+        source_group: np.ndarray,
+        initial: np.ndarray,
+        sigma: float,
+        dt: float,
+        ground: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, int]:
-        """Class-aware ICP from ``initial`` (the guards, then the degeneracy handling); the pose,
-        correspondences per group and iterations. The frame joins ``classaware_frames``."""
+        """Class-aware ICP from ``initial`` (the guards, then the ground refinement of height, roll
+        and pitch with the sweep's ``ground`` points, sensor frame, as the prc registration's, then
+        the degeneracy handling); the pose, correspondences per group and iterations. The frame
+        joins ``classaware_frames``."""
         new_pose, iters = initial, 0
         counts = np.zeros(len(GROUP_NAMES), np.int64)
         if self.map.n and len(source):
@@ -425,6 +451,10 @@ class ClassAwareOdometry(GuardedOdometry):
         check_pose(new_pose, self.last_pose, dt, self.config.guard, "class-aware ICP")
         if self.config.guard.fail_on_max_iterations and iters >= self.config.max_num_iterations:
             raise OdometryFailure(f"class-aware ICP did not converge in {iters} iterations")
+        if ground is not None:
+            new_pose, _, refined = self.ground.refine(ground, new_pose, sigma)
+            if refined:
+                self.ground_refined.append(len(self.poses))
         new_pose = self._condition(source, source_group, self.map, sigma, new_pose, initial)
         self.classaware_frames.append(len(self.poses))
         return new_pose, counts, int(iters)

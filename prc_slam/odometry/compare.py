@@ -188,10 +188,9 @@ class CompareResult:
                 "suspicious": [h.suspicious for h in health],
                 "degeneracy_ratio": [None if c is None else c.ratio for c in run.odometry.conditioning[:n]],
             }
-            kiss = run.odometry.fallback if isinstance(run.odometry, ClassAwareOdometry) else run.odometry
-            if getattr(kiss, "ground", None) is not None and run.counts_in:
+            if getattr(run.odometry, "ground", None) is not None and run.counts_in:
                 # frames whose height, roll and pitch the ground refinement moved (odometry.ground)
-                m["ground_refined_frames"] = [i for i in kiss.ground_refined if i < n]
+                m["ground_refined_frames"] = sorted(i for i in run.odometry.ground_refined if i < n)
             if run.counts_in:
                 m["points_in_per_class"] = run.counts_in
                 m["points_kept_per_class"] = run.counts_kept

@@ -563,8 +563,8 @@ class KissOdometry(GuardedOdometry):
         ``update_map`` is False), the adaptive threshold and the constant-velocity model go on from
         it, as after :meth:`register`. For an odometry that registered the frame otherwise
         (:class:`~prc_slam.odometry.classaware.ClassAwareOdometry` with its anchors) and keeps
-        this one in step to fall back on. The ground model (``ground.enabled``) is not updated:
-        the class-aware sweeps are not refined."""
+        this one in step to fall back on. The ground model (``ground.enabled``) is not updated
+        here: the class-aware odometry shares it, and refines and updates it itself."""
         from kiss_icp.voxelization import voxel_down_sample
 
         kiss = self.kiss

@@ -20,6 +20,7 @@ from prc_slam.odometry.classaware import (
     icp,
 )
 from prc_slam.odometry.compare import run_compare
+from prc_slam.odometry.ground import GroundConfig
 from prc_slam.odometry.kiss import KissOdometry, OdometryConfig
 from prc_slam.testing import assert_trajectory_close
 
@@ -244,3 +245,23 @@ def test_group_voxel_map_follows_kiss_rules():
     gmap.update(many, np.full(5000, GROUND), np.eye(4))  # grows and rehashes
     cloud, groups = gmap.point_cloud()
     assert len(cloud) > 2000 and (groups == GROUND).all()  # the trunk voxel is 50 m away now
+
+
+@pytest.mark.parametrize("ground", [True, False])
+def test_anchored_sweeps_get_the_ground_refinement(ground):
+    """The sweeps matched class-aware are refined against the ground model (height, roll and
+    pitch, ``odometry.ground``) that the prc registration it falls back on refines against too:
+    one model, shared; with ``ground.enabled`` off neither refines."""
+    pts, codes = _room(np.random.default_rng(6))
+    odo = ClassAwareOdometry(OdometryConfig(deskew=False, ground=GroundConfig(enabled=ground)))
+    poses = [odo.register(f, None, codes, frame_time=0.1 * i) for i, f in enumerate(_moves(pts, 5))]
+    assert odo.classaware_frames == [1, 2, 3, 4]
+    if ground:
+        assert odo.ground is odo.fallback.ground and odo.ground_refined is odo.fallback.ground_refined
+        # every sweep after the first: ~4 ground points a frame fall in each 1 m cell here, and a
+        # cell's plane needs ground.min_points (5), so the first frame's cells alone give too few
+        assert odo.ground_refined == [1, 2, 3, 4]
+    else:
+        assert odo.ground is None and odo.ground_refined == []
+    assert np.linalg.norm(poses[-1][:3, 3] - [1.2, 0.0, 0.0]) < 0.02
+    assert abs(poses[-1][2, 3]) < 0.005
