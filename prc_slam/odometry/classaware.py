@@ -273,6 +273,8 @@ class ClassAwareOdometry(GuardedOdometry):
         #: the prc registration it falls back on, so that both refine against the same ground
         self.ground: GroundModel | None = None
         self.ground_refined: list[int] = []  # frames whose height, roll and pitch it moved
+        if self.fallback is not None:  # the frames either registration deskewed again, in one list
+            self.redeskewed = self.fallback.redeskewed
         if self.config.ground.enabled:
             if self.fallback is not None:
                 self.ground, self.ground_refined = self.fallback.ground, self.fallback.ground_refined
@@ -318,7 +320,6 @@ class ClassAwareOdometry(GuardedOdometry):
         OdometryFailure
             Non-finite pose, pose jump beyond the guard's bounds, ICP at its iteration limit.
         """
-        from kiss_icp.voxelization import voxel_down_sample
 
         raw = np.asarray(points)
         if raw.ndim != 2 or raw.shape[1] != 3:
@@ -335,35 +336,10 @@ class ClassAwareOdometry(GuardedOdometry):
         codes = codes[finite]
         if not is_rigid(self.last_pose) or not is_rigid(self.last_delta):
             raise OdometryFailure("the odometry state is not a finite rigid transform")
-        pts, stamps = self._deskew(pts, times, t_ref, self.last_delta)
+        measured = pts
+        pts, stamps = self._deskew(measured, times, t_ref, self.last_delta)
         group = self.group_of[codes]
-        downs, sources, src_groups = [], [], []
-        for gi in range(len(GROUP_NAMES)):
-            sel = group == gi
-            part, reg = pts[sel], chosen[sel]
-            st = stamps[sel] if len(stamps) else stamps
-            if len(part):
-                # KISS-ICP's preprocessing (range crop; its own deskewing only with the "kiss"
-                # convention) per group, so that the groups stay apart
-                if not reg.all():
-                    reg_part = self.preprocessor.preprocess(part[reg], st[reg] if len(st) else st, self.last_delta)
-                part = self.preprocessor.preprocess(part, st, self.last_delta)
-                if reg.all():
-                    reg_part = part
-            else:
-                reg_part = part
-            fd = voxel_down_sample(part, self.voxel * 0.5) if len(part) else np.zeros((0, 3))
-            if reg_part is part:
-                src = voxel_down_sample(fd, self.voxel * 1.5) if len(fd) else np.zeros((0, 3))
-            elif len(reg_part):
-                src = voxel_down_sample(voxel_down_sample(reg_part, self.voxel * 0.5), self.voxel * 1.5)
-            else:
-                src = np.zeros((0, 3))
-            downs.append(fd.reshape(-1, 3))
-            sources.append(src.reshape(-1, 3))
-            src_groups.append(np.full(len(src), gi, dtype=np.int64))
-        source = np.concatenate(sources)
-        source_group = np.concatenate(src_groups)
+        downs, source, source_group = self._group_sources(pts, stamps, chosen, group, self.last_delta)
         sigma = self.adaptive_threshold.get_threshold()
         if not np.isfinite(sigma) or sigma <= 0:
             raise OdometryFailure(f"adaptive threshold is {sigma}")
@@ -380,13 +356,21 @@ class ClassAwareOdometry(GuardedOdometry):
             self.anchor_ratio.append(None)
             return self._coast(len(source), initial, sigma, dropped)
         if self._anchored(source, source_group, initial, sigma):
+            new_pose, counts, iters = self._icp(source, source_group, initial, sigma, dt)
+            if self._redeskew_due(labels is not None, times, initial, new_pose):
+                for _ in range(self.config.redeskew):
+                    motion = np.linalg.inv(self.last_pose) @ new_pose
+                    pts, stamps = self._deskew(measured, times, t_ref, motion, self.clock.last_interval())
+                    downs, source, source_group = self._group_sources(pts, stamps, chosen, group, motion)
+                    new_pose, counts, iters = self._icp(source, source_group, new_pose, sigma, dt)
+                self.redeskewed.append(len(self.poses))
             ground = None
             if self.ground is not None and labels is not None:
                 g = self.config.ground
                 ground = ground_points(
                     pts, codes, [L.GROUND], self.config.min_range, min(g.max_range, self.config.max_range)
                 )
-            new_pose, counts, iters = self._register_classaware(source, source_group, initial, sigma, dt, ground)
+            new_pose = self._refine(source, source_group, initial, sigma, new_pose, ground)
             if self.fallback is not None:
                 self.fallback.follow(given[0], given[1], given[2], new_pose)
             if ground is not None:
@@ -428,36 +412,77 @@ class ClassAwareOdometry(GuardedOdometry):
         self.anchor_ratio.append(ratio)
         return ratio >= self.config.degeneracy.ratio
 
-    def _register_classaware(
-        self,
-        source: np.ndarray,
-        source_group: np.ndarray,
-        initial: np.ndarray,
-        sigma: float,
-        dt: float,
-        ground: np.ndarray | None = None,
+    def _group_sources(
+        self, pts: np.ndarray, stamps: np.ndarray, chosen: np.ndarray, group: np.ndarray, delta: np.ndarray
+    ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+        """KISS-ICP's preprocessing and voxelisation of a deskewed frame, group by group (``delta``:
+        the motion for KISS-ICP's own deskewing, "kiss" convention only): the frame for the map per
+        group, and the source (of the ``chosen`` points) with the group of each point."""
+        from kiss_icp.voxelization import voxel_down_sample
+
+        downs, sources, src_groups = [], [], []
+        for gi in range(len(GROUP_NAMES)):
+            sel = group == gi
+            part, reg = pts[sel], chosen[sel]
+            st = stamps[sel] if len(stamps) else stamps
+            if len(part):
+                # KISS-ICP's preprocessing (range crop; its own deskewing only with the "kiss"
+                # convention) per group, so that the groups stay apart
+                if not reg.all():
+                    reg_part = self.preprocessor.preprocess(part[reg], st[reg] if len(st) else st, delta)
+                part = self.preprocessor.preprocess(part, st, delta)
+                if reg.all():
+                    reg_part = part
+            else:
+                reg_part = part
+            fd = voxel_down_sample(part, self.voxel * 0.5) if len(part) else np.zeros((0, 3))
+            if reg_part is part:
+                src = voxel_down_sample(fd, self.voxel * 1.5) if len(fd) else np.zeros((0, 3))
+            elif len(reg_part):
+                src = voxel_down_sample(voxel_down_sample(reg_part, self.voxel * 0.5), self.voxel * 1.5)
+            else:
+                src = np.zeros((0, 3))
+            downs.append(fd.reshape(-1, 3))
+            sources.append(src.reshape(-1, 3))
+            src_groups.append(np.full(len(src), gi, dtype=np.int64))
+        return downs, np.concatenate(sources), np.concatenate(src_groups)
+
+    def _icp(
+        self, source: np.ndarray, source_group: np.ndarray, guess: np.ndarray, sigma: float, dt: float
     ) -> tuple[np.ndarray, np.ndarray, int]:
-        """Class-aware ICP from ``initial`` (the guards, then the ground refinement of height, roll
-        and pitch with the sweep's ``ground`` points, sensor frame, as the prc registration's, then
-        the degeneracy handling); the pose, correspondences per group and iterations. The frame
-        joins ``classaware_frames``."""
-        new_pose, iters = initial, 0
+        """Class-aware ICP from ``guess``, with the guards; the pose, correspondences per group and
+        iterations."""
+        new_pose, iters = guess, 0
         counts = np.zeros(len(GROUP_NAMES), np.int64)
         if self.map.n and len(source):
             new_pose, counts, _, iters = icp(
-                source, source_group, self.weights, *self.map.index(), self.voxel, initial, 3.0 * sigma, sigma,
+                source, source_group, self.weights, *self.map.index(), self.voxel, guess, 3.0 * sigma, sigma,
                 self.config.max_num_iterations, self.config.convergence_criterion,
             )  # fmt: skip
         check_pose(new_pose, self.last_pose, dt, self.config.guard, "class-aware ICP")
         if self.config.guard.fail_on_max_iterations and iters >= self.config.max_num_iterations:
             raise OdometryFailure(f"class-aware ICP did not converge in {iters} iterations")
+        return new_pose, counts, int(iters)
+
+    def _refine(
+        self,
+        source: np.ndarray,
+        source_group: np.ndarray,
+        initial: np.ndarray,
+        sigma: float,
+        pose: np.ndarray,
+        ground: np.ndarray | None,
+    ) -> np.ndarray:
+        """After the class-aware ICP: the ground refinement of height, roll and pitch with the
+        sweep's ``ground`` points (sensor frame), as the prc registration's, then the degeneracy
+        handling. The frame joins ``classaware_frames``."""
         if ground is not None:
-            new_pose, _, refined = self.ground.refine(ground, new_pose, sigma)
+            pose, _, refined = self.ground.refine(ground, pose, sigma)
             if refined:
                 self.ground_refined.append(len(self.poses))
-        new_pose = self._condition(source, source_group, self.map, sigma, new_pose, initial)
+        pose = self._condition(source, source_group, self.map, sigma, pose, initial)
         self.classaware_frames.append(len(self.poses))
-        return new_pose, counts, int(iters)
+        return pose
 
     def _register_prc(self, given: tuple) -> np.ndarray:
         """The prc variant's registration of this sweep (KISS-ICP on the same points, kept in

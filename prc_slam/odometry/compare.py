@@ -191,6 +191,8 @@ class CompareResult:
             if getattr(run.odometry, "ground", None) is not None and run.counts_in:
                 # frames whose height, roll and pitch the ground refinement moved (odometry.ground)
                 m["ground_refined_frames"] = sorted(i for i in run.odometry.ground_refined if i < n)
+            if run.counts_in:  # frames deskewed again with their registered motion (odometry.redeskew)
+                m["redeskewed_frames"] = sorted(i for i in run.odometry.redeskewed if i < n)
             if run.counts_in:
                 m["points_in_per_class"] = run.counts_in
                 m["points_kept_per_class"] = run.counts_kept

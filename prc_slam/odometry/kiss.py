@@ -86,6 +86,23 @@ class OdometryConfig(BaseModel):
     guard: GuardConfig = Field(default_factory=GuardConfig)
     degeneracy: DegeneracyConfig = Field(default_factory=DegeneracyConfig)
     ground: GroundConfig = Field(default_factory=GroundConfig)
+    redeskew: int = Field(
+        1,
+        ge=0,
+        description="variants with labels: when a frame's registration departs from the constant-velocity "
+        "prediction so far that its deskewing error at the sweep's ends exceeds a quarter voxel (KISS-ICP's model "
+        "error over half a voxel), deskew it again with the motion just registered and register it again, this "
+        "many times (0: KISS-ICP's single pass with the prediction); redeskewed_frames in the metrics",
+    )
+
+
+def model_error(deviation: np.ndarray, max_range: float) -> float:
+    """KISS-ICP's model error of a deviation from the prediction (Vizzo et al., RA-L 2023, Sec.
+    III-C, eq. 7): its translation plus the displacement ``2 r_max sin(theta / 2)`` its rotation
+    gives a point at the maximum range."""
+    cos = np.clip((np.trace(deviation[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    theta = float(np.arccos(cos))
+    return float(np.linalg.norm(deviation[:3, 3])) + 2.0 * max_range * np.sin(theta / 2.0)
 
 
 @contextmanager
@@ -299,6 +316,8 @@ class GuardedOdometry:
         self.health_spans: list[tuple[float, float]] = []
         #: per registered frame, its conditioning (None: not registered against a map, or not computed)
         self.conditioning: list[Conditioning | None] = []
+        #: frames (indices into poses) deskewed again with their registered motion (``redeskew``)
+        self.redeskewed: list[int] = []
         #: ``{"frame", "kind", "direction", "ratio", "kept_prediction"}`` per degenerate direction of a frame
         self.degenerate_frames: list[dict] = []
 
@@ -331,15 +350,34 @@ class GuardedOdometry:
                 )
         return pts, times, dropped, t_ref, self.clock.last_interval()
 
-    def _deskew(self, pts, times, t_ref, last_delta):
-        """Deskewed points and the stamps to give KISS-ICP's preprocessor (empty: none)."""
+    def _deskew(self, pts, times, t_ref, last_delta, interval=None):
+        """Deskewed points and the stamps to give KISS-ICP's preprocessor (empty: none);
+        ``last_delta`` is the motion over ``interval`` (default: the clock's deskew interval)."""
         if not self.config.deskew or times is None or len(pts) == 0:
             return pts, np.zeros(0)
         if self.config.deskew_convention == "kiss":
             return pts, deskew_stamps(times, len(pts))
         if not is_rigid(last_delta):
             raise OdometryFailure("the constant-velocity motion is not a finite rigid transform")
-        return deskew_points(pts, times, t_ref, self.clock.deskew_interval(), last_delta), np.zeros(0)
+        dt = self.clock.deskew_interval() if interval is None else interval
+        return deskew_points(pts, times, t_ref, dt, last_delta), np.zeros(0)
+
+    def _redeskew_due(self, labelled: bool, times, initial: np.ndarray, pose: np.ndarray) -> bool:
+        """Whether to deskew the frame again with its registered motion (``redeskew``).
+
+        KISS-ICP deskews a frame with the constant-velocity prediction. When the registration
+        departs from it by a model error ``e`` (:func:`model_error`), the points at the sweep's ends
+        were deskewed wrong by up to ``e / 2``. Beyond a quarter voxel (``e`` over half a voxel)
+        that moves points across the cells of the frame's downsampling (half a voxel) and distorts
+        what is registered and mapped: the frame is deskewed again with the motion just registered
+        and registered again. For frames given labels (the PRC variants; without labels the
+        odometry is KISS-ICP's) with per-point times. Measured (model error, 120 frames, 1 m voxel):
+        an urban hdl64 drive at 0.10-0.45 m (p10-p99) never crosses it; a walker in a forest (2 Hz
+        step bounce and pitch, 1 Hz roll and yaw) at 1.8-7.3 m always does.
+        """
+        if not (labelled and self.config.redeskew and self.config.deskew and times is not None and len(times)):
+            return False
+        return model_error(np.linalg.inv(initial) @ pose, self.config.max_range) > 0.5 * self.voxel
 
     def _predicted_motion(self, last_delta: np.ndarray) -> np.ndarray:
         """The motion expected from the previous frame to this one at constant velocity:
@@ -481,6 +519,7 @@ class KissOdometry(GuardedOdometry):
             if source.shape != (len(points),):
                 raise ValueError(f"source mask of shape {source.shape} for {len(points)} points")
             source = source[np.isfinite(np.asarray(points)).all(axis=1)]
+        labelled = labels is not None
         if self.ground is not None and labels is not None:
             labels = np.asarray(labels)
             if labels.shape != (len(points),):
@@ -491,18 +530,11 @@ class KissOdometry(GuardedOdometry):
         pts, times, dropped, t_ref, dt = self._prepare(points, times, frame_time)
         if not is_rigid(kiss.last_pose) or not is_rigid(kiss.last_delta):
             raise OdometryFailure("the odometry state is not a finite rigid transform")
-        pts, stamps = self._deskew(pts, times, t_ref, kiss.last_delta)
+        measured = pts
+        pts, stamps = self._deskew(measured, times, t_ref, kiss.last_delta)
         self.deskewed = pts  # the frame as registered (sensor frame at the reference time)
-        frame = kiss.preprocessor.preprocess(pts, stamps, kiss.last_delta)
-        if source is None or source.all():
-            source, frame_downsample = kiss.voxelize(frame)
-        else:
-            from kiss_icp.voxelization import voxel_down_sample
-
-            frame_downsample = voxel_down_sample(frame, self.voxel * 0.5)
-            chosen_stamps = stamps[source] if len(stamps) else stamps
-            chosen = kiss.preprocessor.preprocess(pts[source], chosen_stamps, kiss.last_delta)
-            source = kiss.voxelize(chosen)[0] if len(chosen) else np.zeros((0, 3))
+        chosen = source
+        source, frame_downsample = self._voxelize(pts, stamps, chosen, kiss.last_delta)
         sigma = kiss.adaptive_threshold.get_threshold()
         motion = self._predicted_motion(kiss.last_delta)
         initial_guess = kiss.last_pose @ motion
@@ -515,16 +547,17 @@ class KissOdometry(GuardedOdometry):
             kiss.last_pose, kiss.last_delta = initial_guess, motion  # the constant velocity carries on
             return self._coast(len(source), initial_guess, sigma, dropped)
         self._check_correspondences(source, initial_guess, sigma)
-        new_pose = np.asarray(
-            kiss.registration.align_points_to_map(
-                points=source,
-                voxel_map=kiss.local_map,
-                initial_guess=initial_guess,
-                max_correspondance_distance=3 * sigma,
-                kernel=sigma,
-            )
-        )
+        new_pose = self._align(source, initial_guess, sigma)
         check_pose(new_pose, kiss.last_pose, dt, self.config.guard, "KISS-ICP")
+        if self._redeskew_due(labelled, times, initial_guess, new_pose):
+            for _ in range(self.config.redeskew):
+                motion = np.linalg.inv(kiss.last_pose) @ new_pose
+                pts, stamps = self._deskew(measured, times, t_ref, motion, self.clock.last_interval())
+                source, frame_downsample = self._voxelize(pts, stamps, chosen, motion)
+                new_pose = self._align(source, new_pose, sigma)
+                check_pose(new_pose, kiss.last_pose, dt, self.config.guard, "KISS-ICP (deskewed again)")
+            self.redeskewed.append(len(self.poses))
+            self.deskewed = pts
         ground = None
         if labels is not None:
             g = self.config.ground
@@ -550,6 +583,33 @@ class KissOdometry(GuardedOdometry):
         pose = new_pose.copy()
         self.poses.append(pose)
         return pose.copy()
+
+    def _voxelize(self, pts, stamps, chosen, delta) -> tuple[np.ndarray, np.ndarray]:
+        """KISS-ICP's preprocessing and voxelisation of a deskewed frame: the source (of the
+        ``chosen`` points only, when given) and the frame for the map."""
+        kiss = self.kiss
+        frame = kiss.preprocessor.preprocess(pts, stamps, delta)
+        if chosen is None or chosen.all():
+            return kiss.voxelize(frame)
+        from kiss_icp.voxelization import voxel_down_sample
+
+        frame_downsample = voxel_down_sample(frame, self.voxel * 0.5)
+        chosen_stamps = stamps[chosen] if len(stamps) else stamps
+        part = kiss.preprocessor.preprocess(pts[chosen], chosen_stamps, delta)
+        return (kiss.voxelize(part)[0] if len(part) else np.zeros((0, 3))), frame_downsample
+
+    def _align(self, source: np.ndarray, guess: np.ndarray, sigma: float) -> np.ndarray:
+        """KISS-ICP's registration of ``source`` to its map from ``guess``."""
+        kiss = self.kiss
+        return np.asarray(
+            kiss.registration.align_points_to_map(
+                points=source,
+                voxel_map=kiss.local_map,
+                initial_guess=guess,
+                max_correspondance_distance=3 * sigma,
+                kernel=sigma,
+            )
+        )
 
     def follow(
         self,
