@@ -39,7 +39,7 @@ from prc_slam import labels as L
 
 
 class FilterConfig(BaseModel):
-    """What reaches the registration (issue 16, measured on simulated 300-frame hdl64 drives with
+    """What reaches the registration (measured on simulated 300-frame hdl64 drives with
     deskewing, times and ATE relative to all points; docs/RESULTS.md): noise dropped; for the map,
     ground on a 1 m horizontal grid (KISS-ICP's map voxel at its default 100 m range), vegetation
     on 1 m and everything else on 0.5 m cubes, each cell by a pseudo-random point of it

@@ -54,7 +54,7 @@ NAME_TO_CODE: dict[str, int] = {info.name: info.code for info in LABELS}
 
 #: SemanticKITTI semantic ids (``label & 0xFFFF``) mapped to our codes. Ids not listed map
 #: to ``UNCLASSIFIED``. Ground, building and noise groups follow the scoring classes of the
-#: PRC paper's urban evaluation (issue 2): ground = road, parking, sidewalk, other-ground,
+#: PRC paper's urban evaluation: ground = road, parking, sidewalk, other-ground,
 #: lane-marking, terrain; building = building, fence, other-structure.
 SEMANTIC_KITTI_TO_CODE: dict[int, int] = {
     0: UNCLASSIFIED,  # unlabeled

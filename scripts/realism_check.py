@@ -1,4 +1,4 @@
-"""Realism check of the simulator (issue 3): KISS-ICP on a simulated hdl64 urban drive, and the
+"""Realism check of the simulator: KISS-ICP on a simulated hdl64 urban drive, and the
 class mix of a simulated frame beside the labelled KITTI frames.
 
     .venv/bin/python scripts/realism_check.py --frames 200 --out out/realism

@@ -43,7 +43,7 @@ def band_name(lo: float, hi: float) -> str:
 
 @dataclass
 class InstanceBands:
-    """Per-instance and per-point scores of one class by range band (Stamos et al.'s cars, issue 38).
+    """Per-instance and per-point scores of one class by range band (Stamos et al.'s cars).
 
     An instance of ``code`` in one frame (reference label ``code``, one reference instance id) with at
     least ``min_points`` returns is *present*; it is *found* when at least ``share`` of its returns are

@@ -1,4 +1,4 @@
-"""The ``batch`` job: many inputs, one task each, on a Dask cluster (issue 19, part 1).
+"""The ``batch`` job: many inputs, one task each, on a Dask cluster.
 
 A plan (YAML, validated by pydantic) lists inputs (directories, files, bags, globs) and the job
 run on each (``classify``, ``detect``, ``compare``, ``filter``, ``mapclass``, with that

@@ -261,7 +261,7 @@ def als_tile(min_points: int = 5_000_000, density: float = 20.0, seed: int = 0) 
 
 def bench_mapclass_als(min_points: int = 5_000_000, repeat: int = 3) -> dict[str, Any]:
     """Map classification on a >= 5 M-point simulated ALS tile (20 points/m^2), in one piece:
-    ``als_points_per_s`` (issue 20: >= 2 M points/s), the best of ``repeat`` runs as every other
+    ``als_points_per_s`` (>= 2 M points/s), the best of ``repeat`` runs as every other
     section here, and ``als_points_per_s_first``, the first run: in a fresh process it also pays
     the kernel's first touch of the memory (the arrays of the later runs reuse freed pages) and
     the compilation of code paths the small warm-up does not reach when numba's cache is cold.
@@ -337,7 +337,7 @@ def bench_peers(
     outlier_rate: float = 0.05,
     repeat: int = 5,
 ) -> dict[str, Any]:
-    """PRC beside the tools users pick instead (issue 15), in one process.
+    """PRC beside the tools users pick instead, in one process.
 
     * ``ground``: KITTI frames with SemanticKITTI labels, PRC (``multibeam``) vs Patchwork++:
       ground precision/recall/F1, PRC's solid classes called noise, ms per frame (PRC also with

@@ -1,4 +1,4 @@
-"""Where batch and tiled work runs: a Dask cluster (issue 19, parts 2 and 3).
+"""Where batch and tiled work runs: a Dask cluster.
 
 :func:`open_client` connects to a scheduler (``--scheduler tcp://HOST:8786`` or the
 ``DASK_SCHEDULER_ADDRESS`` environment variable) or starts an in-process ``LocalCluster`` of

@@ -6,7 +6,7 @@ vegetation (4.5); each step sees only what the earlier ones left. Codes as in DE
 outliers are ``noise``, points left at the end ``unclassified``, non-finite input points
 ``no_return`` (counted in :attr:`MapResult.nonfinite`).
 
-At any point density (issue 20): with ``density_relative`` (default) the Sec. 3.1 threshold and
+At any point density: with ``density_relative`` (default) the Sec. 3.1 threshold and
 the voxel and cell sizes follow the cloud's own surface density
 (:mod:`prc_slam.mapclass.density`), so airborne tiles of 2-20 points/m^2 and terrestrial scans
 classify as mobile-mapping maps do; the paper's fixed values stay under :func:`paper_config`.

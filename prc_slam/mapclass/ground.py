@@ -419,7 +419,7 @@ def detect_ground(
         A point of a ground cell is ground when at most this far (m) above the cell minimum.
     terrain_relative : bool or "auto"
         False (the paper's Sec. 4.1): a cell is compared with the minimum of the window
-        centred on it. True (terrain, issue 20): with the lowest surface of its own side of
+        centred on it. True (terrain): with the lowest surface of its own side of
         the neighbourhood (:func:`opening_window`), so that slopes, rims of terraces and
         quarry walls, and hilltops are not measured against the foot of the slope below them;
         scan lines follow ground that rises without a break up to ``terrain_slope``

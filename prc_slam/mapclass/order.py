@@ -1,6 +1,6 @@
 """Spatial order of a cloud: the points sorted once along a Z-order (Morton) curve before the
 map classification, so that every later grid build, neighbour search and region growing walks
-memory nearly in order (issue 20, speed on airborne tiles), whatever order the points came in.
+memory nearly in order (speed on airborne tiles), whatever order the points came in.
 
 The order is a function of the set of points alone: the Morton key of a fine cube (16 bits per
 axis over the cloud's bounding box), then, among the points of one cube, x, then y, then z.

@@ -1,4 +1,4 @@
-"""Cross-check of the variants of one ``compare`` run (issue 16, part 2).
+"""Cross-check of the variants of one ``compare`` run.
 
 Each variant's own health (:class:`~prc_slam.odometry.guard.DivergenceMonitor`) sees a jump, not
 a registration that is wrong from its first frame on: a class-aware ICP that stops short of every

@@ -30,7 +30,7 @@ from prc_slam.pipeline import ClassifiedFrame, NextFrame, ReadAhead, classify_fr
 from prc_slam.prc.algorithm import warm_up
 from prc_slam.scan import Scan
 
-#: peer variants (issue 15, part 3): a filter of another method before the same KISS-ICP settings
+#: peer variants: a filter of another method before the same KISS-ICP settings
 PEER_VARIANTS = ("sor", "ror", "patchwork")
 #: the variants that filter with PRC's labels
 PRC_VARIANTS = ("prc", "prc+classaware")

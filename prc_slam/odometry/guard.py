@@ -1,6 +1,6 @@
 """Guards and health of a running odometry: never hand KISS-ICP a non-finite number, stop a
 variant whose pose is non-finite or jumps beyond a physical bound, and flag frames where the
-registration looks like it is going wrong (issue 16, parts 1 and 2).
+registration looks like it is going wrong.
 
 A failure (:class:`OdometryFailure`) stops one variant at one frame with a reason; the caller
 (:func:`prc_slam.odometry.compare.run_compare`) records it and goes on with the other variants.

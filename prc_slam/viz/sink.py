@@ -289,7 +289,7 @@ class RerunSink:
             for stage, ms in record.ms(name).items():
                 self.rec.log(f"metrics/ms/{name}/{stage}", rr.Scalars(ms))
             self.rec.log(f"metrics/icp_threshold/{name}", rr.Scalars(record.runs[name].odometry.threshold))
-            if hasattr(record, "health"):  # registration health and the divergence flag (issue 16)
+            if hasattr(record, "health"):  # registration health and the divergence flag
                 h = record.health(name)
                 for key in ("inliers", "inlier_fraction", "mean_residual_m", "suspicious"):
                     if h[key] is not None and np.isfinite(float(h[key])):

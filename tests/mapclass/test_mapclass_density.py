@@ -1,4 +1,4 @@
-"""Map classification at any point density (issue 20): the cloud's own density, the relative
+"""Map classification at any point density: the cloud's own density, the relative
 Sec. 3.1 threshold and its message, sizes from the density, roofs and walls seen from above,
 stems as trunk in forest mode; the airborne and terrestrial simulators and their LAZ files."""
 

@@ -1,5 +1,5 @@
-"""Map classification's ground (paper 004, Sec. 4.1) on airborne terrain the flat scenes lack
-(issue 20): hills, a 30 deg hillside, terraces and an embankment, canopy on a slope, a quarry,
+"""Map classification's ground (paper 004, Sec. 4.1) on airborne terrain the flat scenes lack:
+hills, a 30 deg hillside, terraces and an embankment, canopy on a slope, a quarry,
 a river with a bridge, large roofs; the tiles of :mod:`data_tools.sim.terrain`.
 
 ``terrain_relative`` of :func:`detect_ground` (the opening, ground followed up unbroken slopes,

@@ -1,4 +1,4 @@
-"""The variants of one compare run held against each other (issue 16, part 2): a variant that is
+"""The variants of one compare run held against each other: a variant that is
 wrong from its first frame on keeps a steady residual, so only the other variants can show it."""
 
 from __future__ import annotations

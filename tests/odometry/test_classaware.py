@@ -176,7 +176,7 @@ def forest_walk(tmp_path_factory):
 
 
 def test_golden_forest_walk(forest_walk, trajectory_regression):
-    # deskewing on (the default) since the time convention was fixed (issue 16, part 5)
+    # deskewing on (the default) since the time convention was fixed
     cfg = Config(
         prc=PRCConfig.preset("multibeam", mode="forest"),
         odometry=OdometryConfig(),

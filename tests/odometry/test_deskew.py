@@ -1,4 +1,4 @@
-"""Deskewing and the time convention of poses (issue 16, part 4): a spinning sensor sweeps a known
+"""Deskewing and the time convention of poses: a spinning sensor sweeps a known
 scene (a box room with pillars, ray-cast analytically) while moving with a known constant twist;
 every column fires at its own time and pose. Deskewed through our adapter, the sweep lands on the
 scene; KISS-ICP's own convention (pose at the last point) misses the frame's reference pose."""
@@ -133,7 +133,7 @@ def _errors(odo, sweeps):
 def test_adapter_poses_refer_to_the_frame_time_and_land_the_sweep(sweeps):
     """Through the adapter: poses at the frames' reference times, and the last sweep, deskewed
     with the velocity the adapter estimated, lands on the scene better than without deskewing.
-    KISS-ICP's own convention (the code before issue 16) puts the poses at the last point:
+    KISS-ICP's own convention (as before this adapter deskewed itself) puts the poses at the last point:
     about half a frame of motion off."""
     odo = _run(sweeps)
     ours = _errors(odo, sweeps)

@@ -1,4 +1,4 @@
-"""Guards, health and failure isolation of the odometry variants (issue 16, parts 1 and 2)."""
+"""Guards, health and failure isolation of the odometry variants."""
 
 from __future__ import annotations
 

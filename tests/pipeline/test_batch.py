@@ -1,4 +1,4 @@
-"""``prc-slam batch`` and the distributed tiled map classification (issue 19), on a
+"""``prc-slam batch`` and the distributed tiled map classification, on a
 ``LocalCluster`` of 2 worker processes: outputs identical to running each input alone, a worker
 killed mid-task, a bad input recorded while the others finish, tiled labels identical to the
 serial tiled run."""

@@ -67,7 +67,7 @@ def test_kitti_ground_beside_patchwork(kitti_labelled):
 
 def test_kitti_ground_count_tracks_patchwork(kitti_dir):
     """Over frames 0-15 the ground shrinks as the car drives on (Patchwork++ too: 72.6k -> 55k);
-    PRC's count follows Patchwork++'s frame by frame instead of flipping (issue 15: the paper's
+    PRC's count follows Patchwork++'s frame by frame instead of flipping (the paper's
     largest smooth patch gave 79-81k, then 44-59k)."""
     from prc_slam.evaluation import peers
 

@@ -1,6 +1,6 @@
 """PRC (the preset ``classify`` picks: ``PRCConfig.for_sensor``) on every spinning sensor the
 simulator offers, urban and forest, with 5 % outliers: the labels hold across beam layouts from 16
-to 128 beams and fields of view from 22.5 to 90 deg (issue 15: tune on principles, check every
+to 128 beams and fields of view from 22.5 to 90 deg (tune on principles, check every
 sensor). Measured on the two frames tested (seed 1), F1 urban ground / noise, solid points called
 noise; forest ground / trunk, solid points called noise:
 hdl64 0.966 / 0.892, 1.5 %; 0.989 / 0.801, 4.7 % -- vlp16 0.885 / 0.897, 1.7 %; 0.803 / 0.697, 10.1 %

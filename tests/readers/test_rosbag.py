@@ -1,6 +1,6 @@
 """ROS 1/2 bags and MCAP: PointCloud2 decoding, the three driver layouts read back from simulated
 sweeps (slots and PRC labels vs the simulator's range image), the filtered stream written back
-(round trip), and one-line errors for bad input (issue 14, parts 2-3)."""
+(round trip), and one-line errors for bad input."""
 
 from __future__ import annotations
 
