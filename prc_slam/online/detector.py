@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from prc_slam import labels as L
 from prc_slam.online.car import CarParams, detect_cars
@@ -75,6 +76,21 @@ RUN_MARGIN = 6
 RING_MAX_OFFSET = 4
 
 log = logging.getLogger("prc_slam.online")
+
+
+@njit(cache=True, nogil=True)
+def overlay_labels(labels, ground, column, curb, car):
+    """Sec. 8's overwriting of the coarse classes ``labels`` (rows, cols; in place), in one pass: ground
+    (``ground`` or ``column``, the column ground), then curb, then vehicle where no curb is."""
+    rows, cols = labels.shape
+    for r in range(rows):
+        for c in range(cols):
+            if curb[r, c]:
+                labels[r, c] = 66
+            elif car[r, c]:
+                labels[r, c] = 65
+            elif ground[r, c] or column[r, c]:
+                labels[r, c] = 2
 
 
 @dataclass
@@ -368,16 +384,13 @@ class OnlineDetector:
             for b in cars.boxes:
                 b["center"] = (R.T @ np.asarray(b["center"], dtype=np.float64)).tolist()
         self.last_cars = cars
+        assert L.GROUND == 2 and L.CURB == 66 and L.VEHICLE == 65  # codes written by overlay_labels
         labels = coarse.codes.copy()
         if self.noise_labels and noisy is not None:
             labels.ravel()[noisy[0][-1]] = noisy[1][noisy[0][-1]]
         if spinning and self.ring_labels:
             self.ring_relabel(scan, labels, coarse)
-        labels[ground] = L.GROUND
-        if column is not None:
-            labels[column] = L.GROUND
-        labels[curbs.mask] = L.CURB
-        labels[cars.mask & ~curbs.mask] = L.VEHICLE
+        overlay_labels(labels, ground, ground if column is None else column, curbs.mask, cars.mask)
         zd = self.ground.height if self.ground.height is not None else (heights if np.isscalar(heights) else None)
         seconds = time.perf_counter() - t0
         pose = scan.gt_pose if pose is None else np.asarray(pose, dtype=np.float64)
