@@ -187,6 +187,7 @@ class OnlineDetector:
         self.noise_labels = noise_labels
         self.ring_labels = ring_labels
         self.range_sigmas: list[float] = []  # the first sweeps' range noise (noise_regime_codes)
+        self._default_coarse: dict[bool, CoarseParams] = {}  # default_coarse_params, per profiler or not
 
     @classmethod
     def paper(cls) -> OnlineDetector:
@@ -203,6 +204,16 @@ class OnlineDetector:
             spinning_path=False,
             level=False,
         )
+
+    def coarse_for(self, scan: Scan) -> CoarseParams:
+        """The coarse classifier's parameters for ``scan``: the detector's own, else
+        :func:`default_coarse_params` (made once per kind of sensor, not at every use in every sweep)."""
+        if self.coarse_params is not None:
+            return self.coarse_params
+        profiler = isinstance(scan.sensor, ProfilerSensor)
+        if profiler not in self._default_coarse:
+            self._default_coarse[profiler] = default_coarse_params(scan)
+        return self._default_coarse[profiler]
 
     def range_sigma(self, scan: Scan) -> float:
         """The stream's range noise (m, :func:`~prc_slam.online.noise.range_noise`): the median of
@@ -226,7 +237,7 @@ class OnlineDetector:
         ``CoarseParams.min_step``, centred; other columns 0). Only those columns are classified again (on
         the simulated hdl64 urban sweeps a few per cent of them). None when no such return or the noise
         is unknown."""
-        params = self.coarse_params or default_coarse_params(scan)
+        params = self.coarse_for(scan)
         sigma = self.range_sigma(scan)
         baseline = noise_baseline(sigma, params.veg_sigma)
         if baseline <= params.min_step:
@@ -264,7 +275,7 @@ class OnlineDetector:
         )
         if len(slots) == 0:
             return
-        params = self.coarse_params or default_coarse_params(scan)
+        params = self.coarse_for(scan)
         baseline = noise_baseline(self.range_sigma(scan), params.veg_sigma)
         r, c = np.divmod(slots, scan.shape[1])
         cos_turn = float(np.cos(np.radians(HALFWAY_DEG)))
@@ -321,7 +332,7 @@ class OnlineDetector:
             scan, R = self.level_sweep(scan)
         spinning = self.spinning_path and isinstance(scan.sensor, SpinningSensor)
         # T' only for the per-column car algorithm (a spinning sensor always takes the spinning path)
-        coarse = coarse_classify(scan, self.coarse_params or default_coarse_params(scan), t_prime=not spinning)
+        coarse = coarse_classify(scan, self.coarse_for(scan), t_prime=not spinning)
         ground = self.ground.process(scan, coarse)
         heights = self.ground.line_heights if self.per_line_height else self.ground.height
         line_heights = self.ground.line_heights
@@ -355,7 +366,7 @@ class OnlineDetector:
                     else 0.0
                 )
                 if sp.vegetation_noise or self.noise_labels:
-                    veg_sigma = (self.coarse_params or default_coarse_params(scan)).veg_sigma
+                    veg_sigma = self.coarse_for(scan).veg_sigma
                     regimes = (sp.vegetation_regime,) * sp.vegetation_noise + (veg_sigma,) * self.noise_labels
                     noisy = self.noise_regime_codes(scan, coarse, ground, regimes)
                 if sp.vegetation_noise:  # step 6's vegetation share (spinning.py) over the noise baseline
