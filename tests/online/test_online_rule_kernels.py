@@ -7,7 +7,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from prc_slam import labels as L
 from prc_slam.online.curb import beam_gap_up, group_medians, region_spacing
+from prc_slam.online.detector import overlay_labels
 from prc_slam.online.noise import (
     beam_gaps,
     coarse_vegetation_spacing,
@@ -264,3 +266,27 @@ def test_region_spacing_is_the_masked_median(seed):
         groups = np.unique(ids)
         ref[groups] = group_medians(ids, spacing.astype(np.float32), groups)
     np.testing.assert_array_equal(region_spacing(scan, regions, n, which), ref)
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1))
+def test_overlay_labels_is_the_masked_assignments(seed):
+    """Sec. 8's order: ground (either mask), then curb, then vehicle where no curb is."""
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(1, 6)), int(rng.integers(1, 9)))
+    labels = rng.choice(np.array([0, 5, 68, 69], np.uint8), shape)
+    ground, column, curb, car = (rng.random(shape) < 0.3 for _ in range(4))
+    want = labels.copy()
+    want[ground] = L.GROUND
+    want[column] = L.GROUND
+    want[curb] = L.CURB
+    want[car & ~curb] = L.VEHICLE
+    overlay_labels(labels, ground, column, curb, car)
+    np.testing.assert_array_equal(labels, want)
+
+
+def test_overlay_labels_hand_computed():
+    labels = np.array([[68, 69, 5, 0]], np.uint8)
+    yes, no = np.array([[True, True, True, False]]), np.zeros((1, 4), bool)
+    overlay_labels(labels, yes, no, np.array([[False, True, False, False]]), np.array([[False, True, True, True]]))
+    assert labels.tolist() == [[2, 66, 65, 65]]  # ground; curb over car; car over ground; car on no return
