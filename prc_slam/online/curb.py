@@ -198,23 +198,38 @@ def region_spacing(scan: Scan, regions: np.ndarray, n: int, which: np.ndarray | 
     """Per region ``0..n``: the median over its slots of range x the gap to the next beam up (m),
     the vertical spacing of a spinning sensor's beams on a vertical surface there (index 0, regions
     without slots and those not in ``which``, if given: 0)."""
-    lab = regions.ravel()
     out = np.zeros(n + 1)
+    wanted = np.zeros(n + 1, bool)
     if which is None:
-        members = np.flatnonzero(lab)
+        wanted[:] = True
     else:
-        wanted = np.zeros(n + 1, bool)
         wanted[which] = True
-        wanted[0] = False
-        members = np.flatnonzero(wanted[lab])
-    if len(members) == 0:
+    wanted[0] = False
+    ids, spacing = region_spacings(regions, wanted, scan.ranges, beam_gap_up(scan.sensor.altitude))
+    if len(ids) == 0:
         return out
-    rows = members // scan.shape[1]
-    spacing = scan.ranges.ravel()[members].astype(np.float64) * beam_gap_up(scan.sensor.altitude)[rows]
-    ids = lab[members].astype(np.int64)
     groups = np.unique(ids)
-    out[groups] = group_medians(ids, spacing.astype(np.float32), groups)
+    out[groups] = group_medians(ids, spacing, groups)
     return out
+
+
+@njit(cache=True, nogil=True)
+def region_spacings(regions, wanted, ranges, gap_up):
+    """The slots of the ``wanted`` regions of ``regions`` (rows, cols), in image order: their region id
+    and their range x the gap to the next beam up (``gap_up`` per row; as float32, the medians'
+    type), in one pass over the image."""
+    R, C = regions.shape
+    ids = np.empty(R * C, np.int64)
+    spacing = np.empty(R * C, np.float32)
+    m = 0
+    for r in range(R):
+        for c in range(C):
+            k = regions[r, c]
+            if wanted[k]:
+                ids[m] = k
+                spacing[m] = np.float32(np.float64(ranges[r, c]) * gap_up[r])
+                m += 1
+    return ids[:m].copy(), spacing[:m].copy()
 
 
 def _line_before(scan: Scan, slots: np.ndarray) -> np.ndarray:

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from prc_slam import labels as L
 from prc_slam.online.car import CarParams, detect_cars
@@ -31,9 +32,12 @@ from prc_slam.online.ground import GroundDetector, GroundParams
 from prc_slam.online.noise import (
     HALFWAY_DEG,
     beam_gaps,
+    coarse_vegetation_spacing,
+    column_runs,
+    labelled_over_spacing,
     noise_baseline,
     range_noise,
-    ring_surface,
+    ring_smooth_at,
 )
 from prc_slam.online.spinning import (
     SpinningCarParams,
@@ -67,8 +71,26 @@ NOISE_ROW_STRIDE = 4
 #: beams below and above the returns whose vegetation calls are judged again over the noise baseline that
 #: the classifier's run of each column spans (:meth:`OnlineDetector.noise_regime_codes`)
 RUN_MARGIN = 6
+#: columns each way across which :meth:`OnlineDetector.ring_relabel` looks for a ring's next returns
+#: (:func:`~prc_slam.online.noise.ring_surface`'s ``max_offset``)
+RING_MAX_OFFSET = 4
 
 log = logging.getLogger("prc_slam.online")
+
+
+@njit(cache=True, nogil=True)
+def overlay_labels(labels, ground, column, curb, car):
+    """Sec. 8's overwriting of the coarse classes ``labels`` (rows, cols; in place), in one pass: ground
+    (``ground`` or ``column``, the column ground), then curb, then vehicle where no curb is."""
+    rows, cols = labels.shape
+    for r in range(rows):
+        for c in range(cols):
+            if curb[r, c]:
+                labels[r, c] = 66
+            elif car[r, c]:
+                labels[r, c] = 65
+            elif ground[r, c] or column[r, c]:
+                labels[r, c] = 2
 
 
 @dataclass
@@ -165,6 +187,7 @@ class OnlineDetector:
         self.noise_labels = noise_labels
         self.ring_labels = ring_labels
         self.range_sigmas: list[float] = []  # the first sweeps' range noise (noise_regime_codes)
+        self._default_coarse: dict[bool, CoarseParams] = {}  # default_coarse_params, per profiler or not
 
     @classmethod
     def paper(cls) -> OnlineDetector:
@@ -182,6 +205,16 @@ class OnlineDetector:
             level=False,
         )
 
+    def coarse_for(self, scan: Scan) -> CoarseParams:
+        """The coarse classifier's parameters for ``scan``: the detector's own, else
+        :func:`default_coarse_params` (made once per kind of sensor, not at every use in every sweep)."""
+        if self.coarse_params is not None:
+            return self.coarse_params
+        profiler = isinstance(scan.sensor, ProfilerSensor)
+        if profiler not in self._default_coarse:
+            self._default_coarse[profiler] = default_coarse_params(scan)
+        return self._default_coarse[profiler]
+
     def range_sigma(self, scan: Scan) -> float:
         """The stream's range noise (m, :func:`~prc_slam.online.noise.range_noise`): the median of
         the estimates of its first :data:`NOISE_SWEEPS` sweeps (a property of the sensor; NaN
@@ -198,70 +231,55 @@ class OnlineDetector:
         """The returns of a spinning sweep that the coarse classifier calls vegetation (other than
         ground) in the range-noise regime of each of ``regimes_deg`` (column spacing under
         ``noise_baseline(sigma, angle)``: there the paper's successive steps up a column are turned that
-        far by the noise, and the call may be the noise's), and the coarse classes of every slot with the
-        steps of those returns' columns taken over the baseline the classifier's state spread asks for
-        (``noise_baseline(sigma, veg_sigma)`` as ``CoarseParams.min_step``, centred; other columns 0).
-        Only those columns are classified again (on the simulated hdl64 urban sweeps a few per cent of
-        them). None when no such return or the noise is unknown."""
-        params = self.coarse_params or default_coarse_params(scan)
+        far by the noise, and the call may be the noise's), as flat slot indices (image order) per regime,
+        and the coarse classes of every slot (flat) with the steps of those returns' columns taken over
+        the baseline the classifier's state spread asks for (``noise_baseline(sigma, veg_sigma)`` as
+        ``CoarseParams.min_step``, centred; other columns 0). Only those columns are classified again (on
+        the simulated hdl64 urban sweeps a few per cent of them). None when no such return or the noise
+        is unknown."""
+        params = self.coarse_for(scan)
         sigma = self.range_sigma(scan)
         baseline = noise_baseline(sigma, params.veg_sigma)
         if baseline <= params.min_step:
             return None
-        r, c = np.nonzero((coarse.codes == L.VEGETATION) & ~ground)
-        gap = beam_gaps(scan.sensor.altitude)
-        spacing = scan.ranges[r, c] * gap[r]
-        masks, any_under = [], np.zeros(len(r), bool)
-        for angle in regimes_deg:
-            m = np.zeros(scan.shape, bool)
-            under = spacing < noise_baseline(sigma, angle)
-            m[r[under], c[under]] = True
-            any_under |= under
-            masks.append(m)
-        if not any_under.any():
+        bounds = [noise_baseline(sigma, angle) for angle in regimes_deg]
+        if not bounds:
+            return None
+        # one pass over the image for every regime: the returns under the widest baseline, and their spacings
+        slots, spacing = coarse_vegetation_spacing(
+            coarse.codes, ground, scan.ranges, beam_gaps(scan.sensor.altitude), max(bounds), L.VEGETATION
+        )
+        if len(slots) == 0:
             return None
         base = dataclasses.replace(params, min_step=baseline, centred=True)
-        return masks, coarse_classify(
-            scan, base, t_prime=False, lines=self._column_runs(scan, coarse, r, c, any_under)
-        ).codes
+        codes = coarse_classify(scan, base, t_prime=False, lines=self._column_runs(scan, coarse, slots)).codes
+        return [slots[spacing < bound] for bound in bounds], codes.ravel()
 
     @staticmethod
-    def _column_runs(scan: Scan, coarse: CoarseResult, r: np.ndarray, c: np.ndarray, keep: np.ndarray) -> np.ndarray:
-        """The runs of the columns of slots ``(r, c)[keep]`` (a spinning sensor's scan line i is its
+    def _column_runs(scan: Scan, coarse: CoarseResult, slots: np.ndarray) -> np.ndarray:
+        """The runs of the columns of ``slots`` (flat indices; a spinning sensor's scan line i is its
         column i, lowest beam first: :func:`~prc_slam.online.coarse.scan_lines`) from :data:`RUN_MARGIN`
-        beams below the lowest such slot to as many above the highest, ``-1``-padded: what the
-        classifier needs to judge those slots again (its CUSUM settles within a few returns)."""
-        rows = scan.shape[0]
-        rank = np.empty(rows, np.int64)
-        rank[np.argsort(scan.sensor.altitude, kind="stable")] = np.arange(rows)
-        col, pos = c[keep], rank[r[keep]]
-        cols = np.unique(col)
-        lo = np.full(scan.shape[1], rows, np.int64)
-        hi = np.full(scan.shape[1], -1, np.int64)
-        np.minimum.at(lo, col, pos)
-        np.maximum.at(hi, col, pos)
-        lo = np.maximum(lo[cols] - RUN_MARGIN, 0)
-        hi = np.minimum(hi[cols] + RUN_MARGIN, rows - 1)
-        width = int((hi - lo).max()) + 1
-        j = lo[:, None] + np.arange(width)[None, :]
-        runs = coarse.lines[cols[:, None], np.minimum(j, rows - 1)]
-        return np.where(j <= hi[:, None], runs, -1)
+        beams below the lowest such slot to as many above the highest, ``-1``-padded
+        (:func:`~prc_slam.online.noise.column_runs`): what the classifier needs to judge those slots again
+        (its CUSUM settles within a few returns)."""
+        rank = np.empty(scan.shape[0], np.int64)
+        rank[np.argsort(scan.sensor.altitude, kind="stable")] = np.arange(scan.shape[0])
+        return column_runs(coarse.lines, rank, slots, RUN_MARGIN)
 
     def ring_relabel(self, scan: Scan, labels: np.ndarray, coarse: CoarseResult) -> None:
         """Vegetation returns (``labels``, in place) that their column does not resolve and that lie
         on a smooth surface along their ring become horizontal or vertical by their signed angle
         (:func:`~prc_slam.online.noise.ring_surface`; ``ring_labels``)."""
-        r, c = np.nonzero(labels == L.VEGETATION)
-        res = self.spinning_params.veg_resolution
-        if res > 0 and len(r):
-            gap = beam_gaps(scan.sensor.altitude)
-            far = scan.ranges[r, c] * gap[r] > res
-            r, c = r[far], c[far]
-        if len(r) == 0:
+        slots = labelled_over_spacing(
+            labels, scan.ranges, beam_gaps(scan.sensor.altitude), self.spinning_params.veg_resolution, L.VEGETATION
+        )
+        if len(slots) == 0:
             return
-        params = self.coarse_params or default_coarse_params(scan)
+        params = self.coarse_for(scan)
         baseline = noise_baseline(self.range_sigma(scan), params.veg_sigma)
-        smooth = ring_surface(scan.slot_xyz(), scan.valid, scan.ranges, baseline, HALFWAY_DEG, (r, c))[r, c]
+        r, c = np.divmod(slots, scan.shape[1])
+        cos_turn = float(np.cos(np.radians(HALFWAY_DEG)))
+        smooth = ring_smooth_at(scan.slot_xyz(), scan.valid, scan.ranges, baseline, cos_turn, r, c, RING_MAX_OFFSET)
         r, c = r[smooth], c[smooth]
         labels[r, c] = np.where(np.abs(coarse.sv[r, c]) < HALFWAY_DEG, L.VERTICAL, L.HORIZONTAL)
 
@@ -314,12 +332,12 @@ class OnlineDetector:
             scan, R = self.level_sweep(scan)
         spinning = self.spinning_path and isinstance(scan.sensor, SpinningSensor)
         # T' only for the per-column car algorithm (a spinning sensor always takes the spinning path)
-        coarse = coarse_classify(scan, self.coarse_params or default_coarse_params(scan), t_prime=not spinning)
+        coarse = coarse_classify(scan, self.coarse_for(scan), t_prime=not spinning)
         ground = self.ground.process(scan, coarse)
         heights = self.ground.line_heights if self.per_line_height else self.ground.height
         line_heights = self.ground.line_heights
         column = None  # the ground labels' column ground (column_ground_all), made beside the cars
-        noisy = None  # ([car test's, labels' regime masks as switched on], codes over the noise baseline)
+        noisy = None  # ([car test's, labels' regime slots as switched on], flat codes over the noise baseline)
         more_ground = self.column_ground_all
         if spinning and line_heights is None:  # columns too short for Sec. 5 (a): the column profile
             ground, line_heights, heights = column_ground(scan, coarse.lines)
@@ -348,13 +366,13 @@ class OnlineDetector:
                     else 0.0
                 )
                 if sp.vegetation_noise or self.noise_labels:
-                    veg_sigma = (self.coarse_params or default_coarse_params(scan)).veg_sigma
+                    veg_sigma = self.coarse_for(scan).veg_sigma
                     regimes = (sp.vegetation_regime,) * sp.vegetation_noise + (veg_sigma,) * self.noise_labels
                     noisy = self.noise_regime_codes(scan, coarse, ground, regimes)
                 if sp.vegetation_noise:  # step 6's vegetation share (spinning.py) over the noise baseline
                     veg = coarse.codes == L.VEGETATION
                     if noisy is not None:
-                        veg = np.where(noisy[0][0], noisy[1] == L.VEGETATION, veg)
+                        veg.ravel()[noisy[0][0]] = noisy[1][noisy[0][0]] == L.VEGETATION
                 elif sp.vegetation_step > 0 and gap < sp.vegetation_gap:
                     veg_params = CoarseParams(min_step=sp.vegetation_step, centred=True)
                     veg = coarse_classify(scan, veg_params, t_prime=False).codes == L.VEGETATION
@@ -377,16 +395,13 @@ class OnlineDetector:
             for b in cars.boxes:
                 b["center"] = (R.T @ np.asarray(b["center"], dtype=np.float64)).tolist()
         self.last_cars = cars
+        assert L.GROUND == 2 and L.CURB == 66 and L.VEHICLE == 65  # codes written by overlay_labels
         labels = coarse.codes.copy()
         if self.noise_labels and noisy is not None:
-            labels[noisy[0][-1]] = noisy[1][noisy[0][-1]]
+            labels.ravel()[noisy[0][-1]] = noisy[1][noisy[0][-1]]
         if spinning and self.ring_labels:
             self.ring_relabel(scan, labels, coarse)
-        labels[ground] = L.GROUND
-        if column is not None:
-            labels[column] = L.GROUND
-        labels[curbs.mask] = L.CURB
-        labels[cars.mask & ~curbs.mask] = L.VEHICLE
+        overlay_labels(labels, ground, ground if column is None else column, curbs.mask, cars.mask)
         zd = self.ground.height if self.ground.height is not None else (heights if np.isscalar(heights) else None)
         seconds = time.perf_counter() - t0
         pose = scan.gt_pose if pose is None else np.asarray(pose, dtype=np.float64)

@@ -31,6 +31,7 @@ and hdl32, 0.030-0.031 on vlp16 and the Ouster layouts; KITTI 00 frame 0: 0.011 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 #: m: a ring triple whose two steps in range both stay under this lies on one surface
 MAX_RANGE_STEP = 0.5
@@ -174,29 +175,130 @@ def ring_surface(
     out = np.zeros((rows, cols), bool)
     if isinstance(at, tuple):
         r, c = (np.asarray(a, dtype=np.int64) for a in at)
-        keep = valid[r, c]
-        r, c = r[keep], c[keep]
     else:
         r, c = np.nonzero(valid if at is None else (valid & at))
     if len(r) == 0:
         return out
-    step = np.asarray(ranges, dtype=np.float64)[r, c] * (2.0 * np.pi / cols)
-    k = np.clip(np.ceil(baseline / np.maximum(step, 1e-9)), 1, max_offset).astype(np.int64)
-    ends = []
-    for sign in (-1, 1):  # the nearest valid return at least k columns away on each side
-        off = np.zeros(len(r), np.int64)
-        for j in range(max_offset, 0, -1):
-            hit = (j >= k) & valid[r, (c + sign * j) % cols]
-            off[hit] = j
-        ends.append(off)
-    before, after = ends
-    ok = (before > 0) & (after > 0)
-    p = np.asarray(xyz[r, c], dtype=np.float64)
-    d1 = p - xyz[r, (c - before) % cols]
-    d2 = xyz[r, (c + after) % cols] - p
-    n1, n2 = np.linalg.norm(d1, axis=1), np.linalg.norm(d2, axis=1)
-    ok &= (n1 < 3.0 * before * step) & (n2 < 3.0 * after * step) & (n1 > 0) & (n2 > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos = np.einsum("ij,ij->i", d1, d2) / (n1 * n2)
-    out[r, c] = ok & (cos > np.cos(np.radians(max_turn_deg)))
+    out[r, c] = ring_smooth_at(
+        xyz, valid, ranges, float(baseline), float(np.cos(np.radians(max_turn_deg))), r, c, int(max_offset)
+    )
     return out
+
+
+@njit(cache=True, nogil=True)
+def ring_smooth_at(xyz, valid, ranges, baseline, cos_turn, r, c, max_offset):
+    """:func:`ring_surface` of the slots ``(r[i], c[i])`` (False where no return), one pass with no
+    temporaries; ``cos_turn``: the cosine of ``max_turn_deg``.
+
+    The arithmetic is that of the vectorised form it replaced, operation for operation (ranges and
+    coordinates taken to float64 first; each norm summed x, y, z in order; the dot product of the
+    two steps summed as numpy's ``einsum`` sums three products, the x and z terms first), so that
+    both give the same bits."""
+    cols = valid.shape[1]
+    n = r.shape[0]
+    out = np.zeros(n, np.bool_)
+    ring_step = 2.0 * np.pi / cols
+    for i in range(n):
+        ri, ci = r[i], c[i]
+        if not valid[ri, ci]:
+            continue
+        step = np.float64(ranges[ri, ci]) * ring_step
+        k = int(min(max(np.ceil(baseline / max(step, 1e-9)), 1.0), float(max_offset)))
+        before = 0  # the nearest valid return at least k columns away on each side
+        for j in range(k, max_offset + 1):
+            if valid[ri, (ci - j) % cols]:
+                before = j
+                break
+        after = 0
+        for j in range(k, max_offset + 1):
+            if valid[ri, (ci + j) % cols]:
+                after = j
+                break
+        if before == 0 or after == 0:
+            continue
+        cb, ca = (ci - before) % cols, (ci + after) % cols
+        p0, p1, p2 = np.float64(xyz[ri, ci, 0]), np.float64(xyz[ri, ci, 1]), np.float64(xyz[ri, ci, 2])
+        a0, a1, a2 = p0 - np.float64(xyz[ri, cb, 0]), p1 - np.float64(xyz[ri, cb, 1]), p2 - np.float64(xyz[ri, cb, 2])
+        b0, b1, b2 = np.float64(xyz[ri, ca, 0]) - p0, np.float64(xyz[ri, ca, 1]) - p1, np.float64(xyz[ri, ca, 2]) - p2
+        n1 = np.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+        n2 = np.sqrt((b0 * b0 + b1 * b1) + b2 * b2)
+        if not (n1 < 3.0 * before * step and n2 < 3.0 * after * step and n1 > 0.0 and n2 > 0.0):
+            continue
+        cos = ((a0 * b0 + a2 * b2) + a1 * b1) / (n1 * n2)
+        out[i] = cos > cos_turn
+    return out
+
+
+@njit(cache=True, nogil=True)
+def coarse_vegetation_spacing(codes, ground, ranges, gap, max_spacing, vegetation):
+    """The returns whose coarse class ``codes`` is ``vegetation`` (other than ``ground``) with a
+    column spacing (``range x gap`` of their row, :func:`column_spacing`) under ``max_spacing``:
+    their flat slot indices in image order and those spacings, in one pass over the image."""
+    rows, cols = codes.shape
+    slots = np.empty(rows * cols, np.int64)
+    spacing = np.empty(rows * cols)
+    m = 0
+    for r in range(rows):
+        g = gap[r]
+        for c in range(cols):
+            if codes[r, c] != vegetation or ground[r, c]:
+                continue
+            s = np.float64(ranges[r, c]) * g
+            if s < max_spacing:
+                slots[m] = r * cols + c
+                spacing[m] = s
+                m += 1
+    return slots[:m].copy(), spacing[:m].copy()
+
+
+@njit(cache=True, nogil=True)
+def column_runs(lines, rank, slots, margin):
+    """The runs of the columns of ``slots`` (flat indices of a ``rows x cols`` image, ``cols`` the
+    number of ``lines``: a spinning sensor's scan line ``i`` is its column ``i``, lowest beam first,
+    ``rank`` each row's position in it) from ``margin`` beams below the lowest of those slots in the
+    column to as many above the highest, ``-1``-padded, in column order."""
+    rows = rank.shape[0]
+    cols = lines.shape[0]
+    lo = np.full(cols, rows, np.int64)
+    hi = np.full(cols, -1, np.int64)
+    for s in slots:
+        c = s % cols
+        pos = rank[s // cols]
+        lo[c] = min(lo[c], pos)
+        hi[c] = max(hi[c], pos)
+    n = 0
+    width = 0
+    for c in range(cols):
+        if hi[c] >= 0:
+            n += 1
+            width = max(width, min(hi[c] + margin, rows - 1) - max(lo[c] - margin, 0) + 1)
+    runs = np.full((n, width), -1, np.int64)
+    i = 0
+    for c in range(cols):
+        if hi[c] < 0:
+            continue
+        a = max(lo[c] - margin, 0)
+        b = min(hi[c] + margin, rows - 1)
+        for t in range(b - a + 1):
+            runs[i, t] = lines[c, a + t]
+        i += 1
+    return runs
+
+
+@njit(cache=True, nogil=True)
+def labelled_over_spacing(labels, ranges, gap, min_spacing, code):
+    """Flat indices (image order) of the slots labelled ``code`` whose column spacing (``range x gap``
+    of their row) exceeds ``min_spacing`` (every such slot when ``min_spacing <= 0``)."""
+    rows, cols = labels.shape
+    out = np.empty(rows * cols, np.int64)
+    m = 0
+    for r in range(rows):
+        g = gap[r]
+        for c in range(cols):
+            if labels[r, c] != code:
+                continue
+            if min_spacing > 0.0 and not np.float64(ranges[r, c]) * g > min_spacing:
+                continue
+            out[m] = r * cols + c
+            m += 1
+    return out[:m].copy()

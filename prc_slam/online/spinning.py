@@ -261,6 +261,29 @@ def segment_candidates(
     return seg, n, high_touch, tops
 
 
+@njit(cache=True, nogil=True)
+def row_spans(seg):
+    """Per row of ``seg`` (rows, cols): the first column holding a non-zero id and one past the last
+    (``(0, 0)`` for a row without any). The per-segment passes below visit only these spans: they skip
+    id 0, and a ring's run state starts afresh at the first id of a row either way, so the results are
+    those of a pass over every slot, at a fraction of the cost on a sparse image (the step 5b groups)."""
+    R, C = seg.shape
+    lo = np.zeros(R, np.int64)
+    hi = np.zeros(R, np.int64)
+    for r in range(R):
+        first = -1
+        last = -1
+        for c in range(C):
+            if seg[r, c] != 0:
+                if first < 0:
+                    first = c
+                last = c
+        if first >= 0:
+            lo[r] = first
+            hi[r] = last + 1
+    return lo, hi
+
+
 #: m, range noise allowed in step 4's steepness test (``high_steep``)
 STEEP_SLACK = 0.1
 
@@ -287,8 +310,9 @@ def outline_tops(
     c_lo = np.full(n + 1, C, np.int64)
     c_hi = np.full(n + 1, -1, np.int64)
     r_sum = np.zeros(n + 1)
+    span_lo, span_hi = row_spans(seg)
     for r in range(R):  # image order in memory (each column is read upwards from every slot)
-        for c in range(C):
+        for c in range(span_lo[r], span_hi[r]):
             k = seg[r, c]
             if k == 0:
                 continue
@@ -347,7 +371,8 @@ def segment_features(
     ``floor`` (rows, cols; optional): per slot, how high above the ground the sensor's lowest beam
     passes at that slot's distance; the lowest height is then taken above it (what the sensor
     cannot see below a return does not count against the segment's bottom, step 5)."""
-    R, C = seg.shape
+    R = seg.shape[0]
+    span_lo, span_hi = row_spans(seg)  # the columns of each row that hold a segment
     cnt = np.zeros(n + 1)
     sx = np.zeros(n + 1)
     sy = np.zeros(n + 1)
@@ -359,7 +384,7 @@ def segment_features(
     nh = 64
     hh = np.zeros((n + 1, nh), np.int32)  # heights in 0.1 m bins (int32: a quarter of the memory)
     for r in range(R):
-        for c in range(C):
+        for c in range(span_lo[r], span_hi[r]):
             k = seg[r, c]
             if k == 0:
                 continue
@@ -396,7 +421,7 @@ def segment_features(
     hist = np.zeros((n + 1, nb), np.int32)
     bin_w = 0.1  # m, histogram of the across-axis offset over +-3.2 m
     for r in range(R):
-        for c in range(C):
+        for c in range(span_lo[r], span_hi[r]):
             k = seg[r, c]
             if k == 0:
                 continue
@@ -432,7 +457,7 @@ def segment_features(
         k0 = 0
         p1 = -1
         p2 = -1
-        for c in range(C):
+        for c in range(span_lo[r], span_hi[r]):
             if not valid[r, c]:
                 continue
             k = seg[r, c]
@@ -493,7 +518,7 @@ def segment_features(
         lo_a = np.full((na, n_ang, 2), np.inf)
         hi_a = np.full((na, n_ang, 2), -np.inf)
         for r in range(R):
-            for c in range(C):
+            for c in range(span_lo[r], span_hi[r]):
                 k = seg[r, c]
                 if k == 0 or not area[k]:
                     continue
@@ -540,11 +565,12 @@ def first_returns(lines, valid):
 
 
 @njit(cache=True, nogil=True)
-def _column_ground(xyz, valid, lines_t, zd, tol, slope, max_step, eps):
+def _column_ground(xyz, valid, lines, zd, tol, slope, max_step, eps):
     """:func:`column_ground` along every line at once, step ``j`` of all lines before step ``j + 1``
-    (``lines_t``: the lines transposed, (n, L)): a spinning sensor's step ``j`` is one beam's ring,
-    contiguous in memory, where one line after the other jumped a ring's length at every step."""
-    n_steps, n_lines = lines_t.shape
+    (``lines``: (L, n)): a spinning sensor's step ``j`` is one beam's ring, contiguous in memory, where
+    one line after the other jumped a ring's length at every step. (The line array is read across its
+    rows, a stride the cache holds, instead of being copied transposed every sweep.)"""
+    n_lines, n_steps = lines.shape
     ground = np.zeros(xyz.shape[0], np.bool_)
     height = np.full(n_lines, zd)
     last = np.full(n_lines, -1, np.int64)
@@ -554,7 +580,7 @@ def _column_ground(xyz, valid, lines_t, zd, tol, slope, max_step, eps):
         for li in range(n_lines):
             if ended[li]:
                 continue
-            s = lines_t[j, li]
+            s = lines[li, j]
             if s < 0:
                 ended[li] = True
                 continue
@@ -614,7 +640,7 @@ def column_ground(
     wide = modes[counts >= min_share * counts.sum()]
     zd = float(wide.min()) if len(wide) else float(modes[0])
     ground, height = _column_ground(
-        xyz, valid, np.ascontiguousarray(lines.T), zd, rel_tolerance * abs(zd), np.tan(np.radians(max_slope)),
+        xyz, valid, np.asarray(lines, dtype=np.int64), zd, rel_tolerance * abs(zd), np.tan(np.radians(max_slope)),
         max_step, 0.05,
     )  # fmt: skip
     return ground.reshape(scan.shape), height, zd
@@ -777,6 +803,31 @@ def segment_tops(seg, n, height, vegetation):
     return top_at, cnt, veg.astype(np.float64)
 
 
+@njit(cache=True, nogil=True)
+def segment_tops_within(seg, n, height, vegetation, rng, local_gap, resolution, valid):
+    """:func:`segment_tops` over the returns a column resolves only: those whose column neighbours lie at
+    most ``resolution`` apart (``range x local_gap`` of their row, ``rng`` the ranges) count as slots, and
+    as ``vegetation`` (what :func:`segment_tops` of ``vegetation & resolved`` and :func:`segment_counts` of
+    ``resolved`` give), in one pass over the image with no mask made."""
+    R, C = seg.shape
+    top_at = np.zeros(n + 1, np.int64)
+    best = np.full(n + 1, -np.inf)
+    cnt = np.zeros(n + 1, np.int64)
+    veg = np.zeros(n + 1, np.int64)
+    for r in range(R):
+        g = local_gap[r]
+        for c in range(C):
+            k = seg[r, c]
+            if np.float64(rng[r, c]) * g <= resolution and valid[r, c]:
+                cnt[k] += 1
+                if vegetation[r, c]:
+                    veg[k] += 1
+            if k != 0 and height[r, c] >= best[k]:
+                best[k] = height[r, c]
+                top_at[k] = r * C + c
+    return top_at, cnt, veg.astype(np.float64)
+
+
 def missing_top_gaps(
     valid: np.ndarray, alt: np.ndarray, gaps: np.ndarray, mount: float, max_range: float, at: np.ndarray | None = None
 ) -> np.ndarray:
@@ -807,18 +858,28 @@ def missing_top_gaps(
     reach = np.where(alt < 0, mount / np.tan(-np.minimum(alt, -1e-9)), np.inf)
     should_hit = (alt < 0) & (reach < max_range)  # per row
     idx = np.arange(rows * cols) if at is None else np.asarray(at, dtype=np.int64).ravel()
-    r0, c = idx // cols, idx % cols
-    out = gaps[r0].astype(np.float64)
-    r = r0 + 1
-    live = r < rows  # walking up across misses that must have met a surface
-    while live.any():
-        rr = np.minimum(r, rows - 1)
-        hit = live & valid[rr, c]
-        out[hit] = alt[rr[hit]] - alt[r0[hit]]
-        live &= ~hit & should_hit[rr]
-        r = r + 1
-        live &= r < rows
+    out = _missing_top_gaps(
+        valid, np.asarray(alt, dtype=np.float64), np.asarray(gaps, dtype=np.float64), should_hit, idx
+    )
     return out.reshape((rows, cols) if at is None else np.shape(at))
+
+
+@njit(cache=True, nogil=True)
+def _missing_top_gaps(valid, alt, gaps, should_hit, idx):
+    """:func:`missing_top_gaps` of the flat slots ``idx``, given per row whether its beam must have met a
+    surface (``should_hit``): up each slot's column to the first return, across beams that must have."""
+    rows, cols = valid.shape
+    out = np.empty(idx.shape[0])
+    for i in range(idx.shape[0]):
+        r0, c = idx[i] // cols, idx[i] % cols
+        out[i] = gaps[r0]
+        for r in range(r0 + 1, rows):
+            if valid[r, c]:
+                out[i] = alt[r] - alt[r0]
+                break
+            if not should_hit[r]:
+                break
+    return out
 
 
 def _judge(
@@ -828,18 +889,22 @@ def _judge(
     per segment (index 0 unused, False) and the features behind it. The roof test allows for the
     gap above each segment's highest return: ``gaps`` per row (to the next beam), or ``top_gaps``, a
     function of flat slot indices (:func:`missing_top_gaps`); the feature ``roof_next`` is the roof with
-    the next beam's gap."""
+    the next beam's gap. ``resolved`` (``veg_resolution``): ``(local_gap, resolution)``, the vegetation
+    share taken over the returns whose ``range x local_gap`` (per row) is at most ``resolution``
+    (:func:`segment_tops_within`)."""
     cnt, hlo, hhi, top90, length, width, thick, rough, n_rough = segment_features(
         seg_o, n, xyz, height, valid, p.ring_baseline, p.min_area, p.min_points, p.max_top, p.max_bottom, floor
     )
     share = high_touch / np.maximum(tops, 1)
     cols = seg_o.shape[1]
-    top_at, cnt_all, veg = segment_tops(seg_o, n, height, vegetation)
-    if resolved is not None:  # the share over the returns the column statistic resolves, if enough of them
-        cnt_all = segment_counts(seg_o, n, resolved)
+    if resolved is None:
+        top_at, cnt_all, veg = segment_tops(seg_o, n, height, vegetation)
+    else:  # the share over the returns the column statistic resolves, if enough of them
+        top_at, cnt_all, veg = segment_tops_within(seg_o, n, height, vegetation, rng, *resolved, valid)
         veg = np.where(cnt_all >= p.min_points, veg, 0.0)
-    next_gap = rng.ravel()[top_at] * np.abs(gaps[top_at // cols])
-    top_gap = next_gap if top_gaps is None else rng.ravel()[top_at] * np.abs(top_gaps(top_at))
+    top_rng = rng[top_at // cols, top_at % cols]  # (no flat copy of a reordered range image)
+    next_gap = top_rng * np.abs(gaps[top_at // cols])
+    top_gap = next_gap if top_gaps is None else top_rng * np.abs(top_gaps(top_at))
     veg_share = veg / np.maximum(cnt_all, 1)
     roof = hhi + np.minimum(top_gap, p.max_top_gap)
     ok = (
@@ -945,6 +1010,32 @@ def _heights(z, zg, valid, ground, min_above, max_height):
     return height, cand, high, h_zero, h_down
 
 
+@njit(cache=True, nogil=True)
+def hidden_floor(seg, xyz, zg, rng, tan_low, below_lowest, gap_down):
+    """Per slot of a segment (``seg`` > 0; rows in elevation order, lowest first; other slots 0, which
+    step 5 does not read): how far above the local ground ``zg`` step 5 measures a segment's bottom
+    from. ``below_lowest`` (``hidden_floor``): where the lowest beam (``tan_low``, the tangent of its
+    elevation) passes at the slot's horizontal distance, at least 0 (0 where not finite); plus, with
+    ``gap_down`` (the gap to the next beam down per row; empty: none, ``bottom_gap``), ``range x`` that
+    gap. One pass; each value as the elementwise numpy expressions give it (the horizontal distance in
+    float32, as ``np.hypot`` of the float32 coordinates)."""
+    R, C = rng.shape
+    out = np.zeros((R, C))
+    with_gap = gap_down.shape[0] > 0
+    for r in range(R):
+        for c in range(C):
+            if seg[r, c] == 0:
+                continue
+            v = 0.0
+            if below_lowest:
+                v = np.float64(np.hypot(xyz[r, c, 0], xyz[r, c, 1])) * tan_low - zg[r, c]
+                v = v if np.isfinite(v) and v > 0.0 else 0.0  # +0.0 for -0.0 too, as np.maximum gives
+            if with_gap:
+                v = v + np.float64(rng[r, c]) * gap_down[r]
+            out[r, c] = v
+    return out
+
+
 def detect_cars_spinning(
     scan: Scan,
     ground: np.ndarray,
@@ -1008,30 +1099,26 @@ def detect_cars_spinning(
             return missing_top_gaps(o_valid, alt, gaps, mount, far, at)
 
     floor = None
-    if p.hidden_floor:
-        # a narrow field of view (an OS2's lowest beam at -11.25 deg passes 0.9 m above the road 5 m
-        # out) does not see a near car's lower body: its bottom is measured from where the lowest beam
-        # passes (step 5, "cars stand on the ground", as far as the sensor can tell)
-        zg_o = zg.reshape(rows, cols)[by_elevation]
-        rho = np.hypot(o_xyz[..., 0], o_xyz[..., 1])
-        with np.errstate(invalid="ignore"):
-            floor = np.maximum(rho * np.tan(alt[0]) - zg_o, 0.0)
-        floor = np.where(np.isfinite(floor), floor, 0.0)
-    if p.bottom_gap and rows > 1:
-        # the next beam down passes range x gap below a segment's lowest return and missed the object: its body
-        # may reach down that far, unseen (a 32-beam sensor's 1.33 deg are 0.6 m at 25 m); step 5's bottom is
-        # taken from there, the slot spacing up a column at that range, as the gates of step 3 scale with it
-        gap_down = np.abs(np.concatenate([gaps[:1], gaps[:-1]]))
-        floor = (0.0 if floor is None else floor) + rng * gap_down[:, None]
+    bottom_gap = p.bottom_gap and rows > 1
+    if p.hidden_floor or bottom_gap:
+        # hidden_floor: a narrow field of view (an OS2's lowest beam at -11.25 deg passes 0.9 m above the road
+        # 5 m out) does not see a near car's lower body: its bottom is measured from where the lowest beam
+        # passes (step 5, "cars stand on the ground", as far as the sensor can tell).
+        # bottom_gap: the next beam down passes range x gap below a segment's lowest return and missed the
+        # object: its body may reach down that far, unseen (a 32-beam sensor's 1.33 deg are 0.6 m at 25 m); step
+        # 5's bottom is taken from there, the slot spacing up a column at that range, as the gates of step 3
+        # scale with it
+        gap_down = np.abs(np.concatenate([gaps[:1], gaps[:-1]])) if bottom_gap else np.zeros(0)
+        floor = hidden_floor(
+            seg_o, o_xyz, zg.reshape(rows, cols)[by_elevation], rng, np.tan(alt[0]), p.hidden_floor, gap_down
+        )
     resolved = None
     if p.veg_resolution > 0 and rows > 1:
         # step 6's vegetation share only over returns whose column neighbours lie closer than veg_resolution
         # (range x beam gap): beyond, a column crosses a car with a handful of returns, each near an edge
         # (ground to body, body to glass, roof to background), and the coarse classifier's fast switching
-        # is the sampling's, not the surface's
-        local_gap = np.abs(np.concatenate([gaps[:-1], gaps[-2:-1]]))
-        resolved = (rng * local_gap[:, None] <= p.veg_resolution) & o_valid
-        veg_o = veg_o & resolved
+        # is the sampling's, not the surface's (the returns are picked as step 6 counts them)
+        resolved = (np.abs(np.concatenate([gaps[:-1], gaps[-2:-1]])), float(p.veg_resolution))
     ok, feats = _judge(
         seg_o, n, high_touch, tops, o_xyz, h_o, o_valid, rng, gaps, veg_o, p, floor, resolved, top_gaps
     )  # fmt: skip
