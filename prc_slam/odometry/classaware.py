@@ -357,7 +357,7 @@ class ClassAwareOdometry(GuardedOdometry):
             return self._coast(len(source), initial, sigma, dropped)
         if self._anchored(source, source_group, initial, sigma):
             new_pose, counts, iters = self._icp(source, source_group, initial, sigma, dt)
-            if self._redeskew_due(labels is not None, times, initial, new_pose):
+            if self._redeskew_due(labels is not None, times, initial, new_pose, source, source_group, self.map, sigma):
                 for _ in range(self.config.redeskew):
                     motion = np.linalg.inv(self.last_pose) @ new_pose
                     pts, stamps = self._deskew(measured, times, t_ref, motion, self.clock.last_interval())
