@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from prc_slam import labels as L
 from prc_slam.odometry.degeneracy import block_ratio, surface_information
-from prc_slam.odometry.ground import GroundModel, ground_points
+from prc_slam.odometry.ground import GroundModel
 from prc_slam.odometry.group_map import GroupVoxelMap
 from prc_slam.odometry.guard import OdometryFailure, check_pose, is_rigid, nearest_map_point
 from prc_slam.odometry.kiss import MIN_SOURCE_POINTS, GuardedOdometry, KissOdometry, OdometryConfig, kiss_config
@@ -366,10 +366,7 @@ class ClassAwareOdometry(GuardedOdometry):
                 self.redeskewed.append(len(self.poses))
             ground = None
             if self.ground is not None and labels is not None:
-                g = self.config.ground
-                ground = ground_points(
-                    pts, codes, [L.GROUND], self.config.min_range, min(g.max_range, self.config.max_range)
-                )
+                ground = self._ground_points(pts, codes)
             new_pose = self._refine(source, source_group, initial, sigma, new_pose, ground)
             if self.fallback is not None:
                 self.fallback.follow(given[0], given[1], given[2], new_pose)

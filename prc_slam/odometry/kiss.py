@@ -404,6 +404,12 @@ class GuardedOdometry:
             return not analyse(source, groups, gmap.index(), gmap.voxel, sigma, pose, cfg.ratio).degenerate
         return True
 
+    def _ground_points(self, pts: np.ndarray, labels: np.ndarray) -> np.ndarray:
+        """The frame's points the ground refinement matches (:mod:`~prc_slam.odometry.ground`): labelled
+        ground within both its range and the odometry's."""
+        g = self.config.ground
+        return ground_points(pts, labels, [L.GROUND], self.config.min_range, min(g.max_range, self.config.max_range))
+
     def _predicted_motion(self, last_delta: np.ndarray) -> np.ndarray:
         """The motion expected from the previous frame to this one at constant velocity:
         ``last_delta`` (observed over :meth:`FrameClock.deskew_interval`), stretched to the time
@@ -589,10 +595,7 @@ class KissOdometry(GuardedOdometry):
             self.deskewed = pts
         ground = None
         if labels is not None:
-            g = self.config.ground
-            ground = ground_points(
-                pts, labels, [L.GROUND], self.config.min_range, min(g.max_range, self.config.max_range)
-            )
+            ground = self._ground_points(pts, labels)
             new_pose, matched, refined = self.ground.refine(ground, new_pose, sigma)
             self.ground_matches.append(int(matched))
             if refined:
