@@ -43,7 +43,10 @@ class ClassifiedFrame:
     ``labels`` is None when the run has no PRC stage. ``one_sided`` marks noise slots that meet
     one of the two support conditions of eq. (4) (thin poles, edges), as opposed to isolated
     returns. ``spans`` are the ``time.perf_counter()`` intervals of the work in ``seconds``
-    (organising, classifying), for the credit of work done beside the registration.
+    (organising, classifying) and ``filter_seconds``, for the credit of work done beside the
+    registration. ``filtered`` is the label-driven filter's choice of points
+    (:class:`prc_slam.filtering.FilterResult`, input order) when the odometry stage made it with
+    the frame (:meth:`OdometryStage.prepare`), in ``filter_seconds``.
     """
 
     scan: Scan
@@ -52,6 +55,8 @@ class ClassifiedFrame:
     one_sided: np.ndarray | None = None
     ground_error: str | None = None
     spans: tuple[tuple[float, float], ...] = ()
+    filtered: Any = None
+    filter_seconds: float = 0.0
 
     def point_labels(self) -> np.ndarray:
         """Labels per input point, in input order."""
@@ -64,6 +69,12 @@ class ClassifiedFrame:
         if self.one_sided is None:
             return np.zeros(self.scan.n_points, dtype=bool)
         return self.scan.per_point(self.one_sided)
+
+
+def unclassified(scans: Iterable[Scan]) -> Iterator[ClassifiedFrame]:
+    """The scans as frames of a run without a PRC stage (no labels)."""
+    for scan in scans:
+        yield ClassifiedFrame(scan, None, 0.0)
 
 
 def classify_frames(scans: Iterable[Scan], config: PRCConfig | AutoPreset) -> Iterator[ClassifiedFrame]:
@@ -418,7 +429,13 @@ class Sink(Protocol):
 
 
 class OdometryStage(Protocol):
-    """The odometry variants as one stage (``prc_slam.odometry.compare.OdometryVariants``)."""
+    """The odometry variants as one stage (``prc_slam.odometry.compare.OdometryVariants``).
+
+    ``prepare`` does the per-frame work that needs only the frame (the label-driven filter), as
+    the frame is made: beside the registration of the frame before when the next frame is made
+    there (``odometry.overlap``)."""
+
+    def prepare(self, frame: ClassifiedFrame) -> ClassifiedFrame: ...
 
     def step(self, index: int, frame: ClassifiedFrame, ahead: NextFrame | None = None) -> Any: ...
 
@@ -509,11 +526,9 @@ class Pipeline:
                     self.warn(w if source in w else f"{source}: {w}")
 
     def _classified(self, scans: Iterable[Scan]) -> Iterator[ClassifiedFrame]:
-        if self.prc is not None:
-            yield from classify_frames(scans, self.prc)
-        else:
-            for scan in scans:
-                yield ClassifiedFrame(scan, None, 0.0)
+        frames = classify_frames(scans, self.prc) if self.prc is not None else unclassified(scans)
+        prepare = getattr(self.odometry, "prepare", None)
+        yield from frames if prepare is None else map(prepare, frames)
 
     def run(self, scans: Iterable[Scan]) -> PipelineResult:
         """Run every stage over ``scans`` and return what was produced.

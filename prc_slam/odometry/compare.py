@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -26,7 +26,7 @@ from prc_slam.odometry.agreement import AgreementMonitor
 from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry
 from prc_slam.odometry.guard import GuardConfig, VariantHealth, judge_variant, no_trust_line
 from prc_slam.odometry.kiss import KissOdometry
-from prc_slam.pipeline import ClassifiedFrame, NextFrame, ReadAhead, classify_frames
+from prc_slam.pipeline import ClassifiedFrame, NextFrame, ReadAhead, classify_frames, unclassified
 from prc_slam.prc.algorithm import warm_up
 from prc_slam.scan import Scan
 
@@ -391,6 +391,20 @@ class OdometryVariants:
         self.times: list[float] = []
         self.names: list[str] = []
 
+    def prepare(self, frame: ClassifiedFrame) -> ClassifiedFrame:
+        """``frame`` with the PRC variants' filter applied (``filtered``, ``filter_seconds``, its
+        span among ``spans``): it needs the frame and its labels only, so it is done as the frame
+        is made, beside the registration of the frame before when that is made beside it
+        (``odometry.overlap``), like organising and PRC. Frames without labels are left as they
+        are."""
+        if not self.needs_prc or frame.labels is None:
+            return frame
+        pts, labels, one_sided = frame.scan.points(), frame.point_labels(), frame.point_one_sided()
+        t0 = time.perf_counter()  # the points and labels are every variant's input, charged to none (step)
+        res = filter_points(pts, labels, self.config.filter, one_sided)
+        t1 = time.perf_counter()
+        return replace(frame, filtered=res, filter_seconds=t1 - t0, spans=(*frame.spans, (t0, t1)))
+
     @property
     def all_failed(self) -> bool:
         return all(r.failed is not None for r in self.runs.values())
@@ -402,7 +416,7 @@ class OdometryVariants:
         The variants without PRC register first, alone. With ``ahead`` (and ``odometry.overlap``),
         the next frame is then read, organised and classified on a second thread while the PRC
         variants filter and register this one, taking turns at going first from frame to frame;
-        the next frame's organising and PRC time that ran beside them is credited to each
+        the next frame's organising, PRC and filter time that ran beside them is credited to each
         (``VariantRun.hidden``, :meth:`_credit`).
         """
         config = self.config
@@ -428,13 +442,17 @@ class OdometryVariants:
                 ahead.start()
                 window = True
             try:
+                made = name in PRC_VARIANTS and frame.filtered is not None
                 if name in PRC_VARIANTS:
                     run.ms["prc"].append(frame.seconds * 1e3)
                 t0 = time.perf_counter()
-                keep, codes, res = _select(name, pts, labels, frame, config)
+                if made:  # filtered as the frame was made (prepare): charged as measured there
+                    keep, codes, res = frame.filtered.keep, labels, frame.filtered
+                else:
+                    keep, codes, res = _select(name, pts, labels, frame, config)
                 t1 = time.perf_counter()
                 if name != "raw":
-                    run.ms["filter"].append((t1 - t0) * 1e3)
+                    run.ms["filter"].append(frame.filter_seconds * 1e3 if made else (t1 - t0) * 1e3)
                 sel = keep if res is None else res.kept_in_order  # PRC chooses what is registered, and in which order
                 extra = {}
                 if res is not None and res.source is not None:
@@ -493,9 +511,10 @@ class OdometryVariants:
 
         ``busy``: each PRC variant's filter and registration in the window (not its health
         residuals, which are charged to no variant), as ``time.perf_counter()`` intervals (one
-        variant after the other on this thread). Of the second thread's work only organising and
-        PRC are charged (``NextFrame.charged``: the next frame's PRC and, with a read-ahead, the
-        organising of the frame after; reading is no variant's cost). The part of those intervals
+        variant after the other on this thread). Of the second thread's work only organising, PRC
+        and the filter are charged (``NextFrame.charged``: the next frame's PRC and filter
+        (:meth:`prepare`) and, with a read-ahead, the organising of the frame after; reading is no
+        variant's cost). The part of those intervals
         beside any PRC variant's work is credited to each (at most its own filter and registration
         time): each PRC variant is charged every frame's organising and PRC in full when it is
         consumed, including the time it spent waiting beside another variant's registration
@@ -540,8 +559,8 @@ def run_compare(
     every variant has failed."""
     stage = OdometryVariants(config, variants)
     read = ReadAhead(scans)
-    frames = classify_frames(read, config.prc) if stage.needs_prc else (ClassifiedFrame(s, None, 0.0) for s in read)
-    ahead = NextFrame(iter(frames), read)
+    frames = classify_frames(read, config.prc) if stage.needs_prc else unclassified(read)
+    ahead = NextFrame(map(stage.prepare, frames), read)
     i = 0
     try:
         while (frame := ahead.take()) is not None:

@@ -18,9 +18,10 @@ from prc_slam.jobs.odometry import trajectory_file
 from prc_slam.jobs.report import write_compare_outputs
 from prc_slam.odometry import classaware
 from prc_slam.odometry.classaware import GROUP_NAMES, ClassAwareOdometry, GroupVoxelMap, icp
-from prc_slam.odometry.compare import _without, run_compare
+from prc_slam.odometry.compare import OdometryVariants, _select, _without, run_compare
 from prc_slam.odometry.guard import DivergenceMonitor, FrameHealth, GuardConfig, OdometryFailure, check_pose
 from prc_slam.odometry.kiss import KissOdometry, OdometryConfig
+from prc_slam.pipeline import ClassifiedFrame, classify_frames
 
 
 def _translation(x: float, yaw_deg: float = 0.0) -> np.ndarray:
@@ -210,14 +211,36 @@ def test_overlap_changes_no_pose_and_charges_the_wall_time(short_drive):
     hidden = np.array(prc.hidden)
     busy = np.array(prc.ms["filter"]) + np.array(prc.ms["icp"])  # the health residuals hide nothing
     assert len(hidden) == 8 and (hidden >= 0).all() and (hidden <= busy + 1e-9).all() and hidden.sum() > 0
-    # at most the next frame's PRC and the organising of the one read ahead (none: the simulator's sweeps
-    # come organised); reading is charged to no variant; nothing after the last frame
-    assert (hidden[:-1] <= np.array(prc.ms["prc"][1:]) + 1e-9).all() and hidden[-1] == 0.0
+    # at most the next frame's PRC and filter and the organising of the one read ahead (none: the
+    # simulator's sweeps come organised); reading is charged to no variant; nothing after the last frame
+    made = np.array(prc.ms["prc"][1:]) + np.array(prc.ms["filter"][1:])
+    assert (hidden[:-1] <= made + 1e-9).all() and hidden[-1] == 0.0
     np.testing.assert_allclose(prc.ms_per_frame(), prc.ms_per_frame(serial=True) - hidden)
     m = runs[True].metrics()["variants"]["prc"]
     assert m["ms_overlapped"] == pytest.approx(hidden.mean())
     assert m["ms_per_frame"] == pytest.approx(m["ms_per_frame_serial"] - hidden.mean())
     assert m["per_frame"]["ms_wall"] == pytest.approx(prc.ms_per_frame().tolist())
+
+
+def test_the_filter_made_with_the_frame_chooses_what_the_variant_would(short_drive):
+    """``prepare`` filters a frame as it is made (beside the registration of the frame before):
+    the same points, registration order and source as the filter run at registration, its time and
+    interval recorded with the frame; a frame without labels is left as it is."""
+    cfg = Config(prc=PRCConfig.preset("multibeam"))
+    stage = OdometryVariants(cfg, ["raw", "prc"])
+    frame = next(classify_frames([short_drive[0]], cfg.prc))
+    made = stage.prepare(frame)
+    keep, _, res = _select("prc", frame.scan.points(), frame.point_labels(), frame, cfg)
+    np.testing.assert_array_equal(made.filtered.keep, keep)
+    np.testing.assert_array_equal(made.filtered.kept_in_order, res.kept_in_order)
+    np.testing.assert_array_equal(made.filtered.source, res.source)
+    assert made.filtered.counts_kept == res.counts_kept and 0 < keep.sum() < len(keep)
+    assert made.filter_seconds > 0 and made.spans[:-1] == frame.spans
+    t0, t1 = made.spans[-1]
+    assert t1 - t0 == pytest.approx(made.filter_seconds)
+    bare = ClassifiedFrame(short_drive[0], None, 0.0)
+    assert stage.prepare(bare) is bare
+    assert OdometryVariants(cfg, ["raw"]).prepare(frame) is frame  # no PRC variant: nothing to filter
 
 
 def test_work_beside_the_health_residuals_is_not_credited():
