@@ -152,8 +152,8 @@ def detect_curbs(
     regions_o, n = prc_kernels.connected_components_within(
         vertical[rows], xyz64.reshape(xyz.shape)[rows], p.max_gap, wrap
     )
-    if isinstance(rows, slice):  # a view: the same regions in the reader's row order
-        regions = regions_o[rows]
+    if isinstance(rows, slice):  # the same regions in the reader's row order, contiguous (every later
+        regions = np.ascontiguousarray(regions_o[rows])  # pass reads them in memory order; ravel makes no copy)
     else:
         regions = np.empty_like(regions_o)
         regions[rows] = regions_o
