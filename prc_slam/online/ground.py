@@ -161,6 +161,19 @@ def _fenwick_sum(tree, i):
     return s
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _fenwick_sums(tree_a, tree_b, i):
+    """:func:`_fenwick_sum` of two trees of one length over the first ``i`` entries, in one walk (each sum
+    adds the same entries in the same order as on its own)."""
+    a = 0.0
+    b = 0.0
+    while i > 0:
+        a += tree_a[i]
+        b += tree_b[i]
+        i -= i & -i
+    return a, b
+
+
 @njit(cache=True, nogil=True)
 def _track_mode_ranked(srt, cnt, tot, start, bandwidth):
     """:func:`_track_mode` over the samples entered in the Fenwick trees ``cnt`` / ``tot``
@@ -179,10 +192,12 @@ def _track_mode_ranked(srt, cnt, tot, start, bandwidth):
             i1 += 1
         while i1 > i0 and abs(srt[i1 - 1] - m) > bandwidth:
             i1 -= 1
-        c = _fenwick_sum(cnt, i1) - _fenwick_sum(cnt, i0)
+        c1, t1 = _fenwick_sums(cnt, tot, i1)
+        c0, t0 = _fenwick_sums(cnt, tot, i0)
+        c = c1 - c0
         if c <= 0.0:
             return m
-        new = (_fenwick_sum(tot, i1) - _fenwick_sum(tot, i0)) / c
+        new = (t1 - t0) / c
         if abs(new - m) < 1e-3 * bandwidth:
             return new
         m = new
@@ -338,8 +353,14 @@ def _grow_single_mode(x, start, end, end_max, bandwidth, srt_buf, rank, cnt_buf,
 def _lowest_mean(z, k):
     """The mean of the ``k`` lowest of ``z`` (all if fewer), summed from the lowest up: the value
     of ``np.sort(z)[:k].mean()``, without sorting the rest."""
+    return _lowest_mean_into(z, k, np.empty(min(k, z.shape[0])))
+
+
+@njit(cache=True, nogil=True)
+def _lowest_mean_into(z, k, low):
+    """:func:`_lowest_mean` with ``low`` (at least ``min(k, len(z))`` entries) as its scratch: no array
+    made per call (one call per scan line with a potential-ground run)."""
     m = min(k, z.shape[0])
-    low = np.empty(m)
     n = 0
     for v in z:  # insertion into the m lowest so far, ascending
         if n == m and not v < low[m - 1]:
@@ -410,6 +431,7 @@ def ground_lines(
     line_height = np.full(n_lines, np.nan)
     pending = np.zeros(n_lines, np.bool_)  # lines seen before z_d existed
     scratch = ground_scratch(pts_all.shape[1])
+    low5 = np.empty(5)  # _lowest_mean_into's
     for li in range(n_lines):
         m = count[li]
         pts = pts_all[li, :m]
@@ -424,7 +446,7 @@ def ground_lines(
                 a, b = _potential_ground(codes, phi, first, run_len, phi_bw, *scratch)
             if a < 0:
                 break
-            zi = _lowest_mean(zs[a:b], 5)
+            zi = _lowest_mean_into(zs[a:b], 5, low5)
             if not have_zd:
                 z_hist[n_hist % z_hist.shape[0]] = zi
                 n_hist += 1
