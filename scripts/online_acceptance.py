@@ -156,10 +156,10 @@ for _ in sys.stdin:
     scans = [Scan(r, model) for r in ranges]
     det = OnlineDetector()
     det.process(scans[0])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.thread_time()
     for scan in scans[1:]:
         det.process(scan)
-    print(1e3 * (time.perf_counter() - t0) / frames, flush=True)
+    print(1e3 * (time.perf_counter() - t0) / frames, 1e3 * (time.thread_time() - c0) / frames, flush=True)
 """
 
 
@@ -168,7 +168,8 @@ def speed_against(others: list[Path], frames: int = 10, rounds: int = 8) -> dict
     on the bench's simulated hdl64 urban sweeps (``prc_slam.jobs.bench.bench_online``), each checkout in
     its own process with one numba thread, the processes taking turns round by round (a burst of load
     from elsewhere falls on one round of one checkout, not on one checkout's every round): per checkout
-    the best round, the median and every round. Raises when the checkouts' sweeps differ."""
+    the best round, the median and every round, in wall time and in the thread's CPU time (time spent
+    waiting for a core does not count). Raises when the checkouts' sweeps differ."""
     import os
     import statistics
 
@@ -192,19 +193,28 @@ def speed_against(others: list[Path], frames: int = 10, rounds: int = 8) -> dict
             f"the checkouts simulate different sweeps: {dict(zip(map(str, trees), digests, strict=True))}"
         )
     times: list[list[float]] = [[] for _ in trees]
+    cpu: list[list[float]] = [[] for _ in trees]
     try:
         for _ in range(rounds + 1):  # the first round compiles (numba caches) and is left out
             for i, p in enumerate(procs):
                 p.stdin.write("go\n")
                 p.stdin.flush()
-                times[i].append(float(p.stdout.readline()))
+                wall, thread = p.stdout.readline().split()
+                times[i].append(float(wall))
+                cpu[i].append(float(thread))
     finally:
         for p in procs:
             p.stdin.close()
             p.wait()
     return {
-        str(tree): {"best_ms": min(t[1:]), "median_ms": statistics.median(t[1:]), "rounds_ms": t[1:]}
-        for tree, t in zip(trees, times, strict=True)
+        str(tree): {
+            "best_ms": min(t[1:]),
+            "median_ms": statistics.median(t[1:]),
+            "best_cpu_ms": min(c[1:]),
+            "median_cpu_ms": statistics.median(c[1:]),
+            "rounds_ms": t[1:],
+        }
+        for tree, t, c in zip(trees, times, cpu, strict=True)
     }
 
 
