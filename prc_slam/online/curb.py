@@ -31,6 +31,7 @@ from numba import njit
 
 from prc_slam.online import kernels as K
 from prc_slam.online.coarse import CoarseResult, elevation_rows, line_values
+from prc_slam.online.spinning import relabel
 from prc_slam.prc import kernels as prc_kernels
 from prc_slam.scan import Scan, SpinningSensor
 
@@ -171,13 +172,13 @@ def detect_curbs(
         lab = regions.ravel()
         is_short = np.zeros(n + 1, bool)
         is_short[short] = True
-        members = np.flatnonzero(is_short[lab])  # the slots of these regions only
+        members = flagged_slots(lab, is_short)  # the slots of these regions only
         sv = coarse.sv.ravel()
         curv = np.abs(sv[members] - sv[_line_before(scan, members)])  # as np.diff along axis 0, sv[:1] prepended
         median = group_medians(lab[members], curv, short).astype(curv.dtype)  # float32, as np.median gives
         ok[short] = (size[short] >= 3) & (median <= p.max_curvature)
     ok[0] = False
-    mask = ok[regions]
+    mask = relabel(regions, ok)  # ok[regions]
     return CurbResult(mask, _polylines(regions, ok, _line_index(scan), xyz), possible)
 
 
@@ -231,6 +232,19 @@ def region_spacings(regions, wanted, ranges, gap_up):
                 spacing[m] = np.float32(np.float64(ranges[r, c]) * gap_up[r])
                 m += 1
     return ids[:m].copy(), spacing[:m].copy()
+
+
+@njit(cache=True, nogil=True)
+def flagged_slots(ids, flags):
+    """``np.flatnonzero(flags[ids])`` (``ids`` flat, e.g. region ids per slot; ``flags`` per id) in one
+    pass, without the mask over every slot."""
+    out = np.empty(ids.shape[0], np.int64)
+    m = 0
+    for i in range(ids.shape[0]):
+        if flags[ids[i]]:
+            out[m] = i
+            m += 1
+    return out[:m].copy()
 
 
 def _line_before(scan: Scan, slots: np.ndarray) -> np.ndarray:

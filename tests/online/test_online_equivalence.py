@@ -581,3 +581,33 @@ def test_growth_with_lazy_ranks_is_the_eager_one(seed, n, spread):
     end = int(rng.integers(start, n + 1))
     for bandwidth in (1.0, 10.0):
         assert grow_single_mode(x, start, end, n, bandwidth) == _grow_single_mode_eager(x, start, end, n, bandwidth)
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(0, 200), st.integers(1, 12))
+def test_curb_region_lookups_are_numpys(seed, n_slots, n_ids):
+    """Sec. 6's per-region lookups over the image: the slots of flagged regions and the mask of accepted
+    ones, as numpy's ``np.flatnonzero(flags[ids])`` and ``ok[regions]`` give them."""
+    from prc_slam.online.curb import flagged_slots
+
+    rng = np.random.default_rng(seed)
+    ids = rng.integers(0, n_ids, n_slots).astype(np.int32)
+    flags = rng.random(n_ids) < 0.4
+    got = flagged_slots(ids, flags)
+    assert got.dtype == np.int64
+    np.testing.assert_array_equal(got, np.flatnonzero(flags[ids]))
+    regions = ids.reshape(1, -1) if n_slots % 3 else ids.reshape(-1, 3) if n_slots else ids.reshape(0, 3)
+    mask = relabel(regions, flags)
+    assert mask.dtype == np.bool_
+    np.testing.assert_array_equal(mask, flags[regions])
+
+
+def test_flagged_slots_hand_computed():
+    assert flagged_slots_of([0, 2, 1, 2, 0], [False, True, True]) == [1, 2, 3]
+    assert flagged_slots_of([], [True]) == []
+
+
+def flagged_slots_of(ids: list[int], flags: list[bool]) -> list[int]:
+    from prc_slam.online.curb import flagged_slots
+
+    return flagged_slots(np.array(ids, np.int64), np.array(flags)).tolist()
