@@ -138,6 +138,86 @@ def speed(frames: int = 10, rounds: int = 8) -> dict[str, float]:
     return {f"{k}_points_per_s": points / v for k, v in best.items()} | {f"{k}_ms": 1e3 * v for k, v in best.items()}
 
 
+#: the timing loop run in each checkout's own process by :func:`speed_against` (its imports are that
+#: checkout's): the bench's hdl64 urban sweeps, then one round of the default detector per line read
+SPEED_CHILD = """
+import hashlib, sys, time
+import numpy as np
+from data_tools.sim.simulator import SimConfig, Simulator
+from prc_slam.online import OnlineDetector
+from prc_slam.scan import Scan
+frames = int(sys.argv[1])
+sim = Simulator(SimConfig(scene="urban", sensor="hdl64", frames=frames + 1))
+ranges = [sim.frame(i).ranges for i in range(frames + 1)]
+model = sim.sensor.model
+digest = hashlib.sha256(b"".join(np.ascontiguousarray(r).tobytes() for r in ranges)).hexdigest()[:16]
+print("ready", digest, flush=True)
+for _ in sys.stdin:
+    scans = [Scan(r, model) for r in ranges]
+    det = OnlineDetector()
+    det.process(scans[0])
+    t0, c0 = time.perf_counter(), time.thread_time()
+    for scan in scans[1:]:
+        det.process(scan)
+    print(1e3 * (time.perf_counter() - t0) / frames, 1e3 * (time.thread_time() - c0) / frames, flush=True)
+"""
+
+
+def speed_against(others: list[Path], frames: int = 10, rounds: int = 8) -> dict[str, Any]:
+    """Milliseconds a sweep of the default detector of this checkout and of each checkout in ``others``
+    on the bench's simulated hdl64 urban sweeps (``prc_slam.jobs.bench.bench_online``), each checkout in
+    its own process with one numba thread, the processes taking turns round by round (a burst of load
+    from elsewhere falls on one round of one checkout, not on one checkout's every round): per checkout
+    the best round, the median and every round, in wall time and in the thread's CPU time (time spent
+    waiting for a core does not count). Raises when the checkouts' sweeps differ."""
+    import os
+    import statistics
+
+    here = Path(__file__).resolve().parents[1]
+    trees = [here, *(Path(o).resolve() for o in others)]
+    env = os.environ | {"NUMBA_NUM_THREADS": "1"}
+    procs, digests = [], []
+    for tree in trees:
+        cmd = [sys.executable, "-c", SPEED_CHILD, str(frames)]
+        p = subprocess.Popen(
+            cmd, cwd=tree, env=env | {"PYTHONPATH": str(tree)}, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
+        procs.append(p)
+    for tree, p in zip(trees, procs, strict=True):
+        line = p.stdout.readline().split()
+        if not line or line[0] != "ready":
+            raise RuntimeError(f"{tree}: the timing process did not start")
+        digests.append(line[1])
+    if len(set(digests)) != 1:
+        raise RuntimeError(
+            f"the checkouts simulate different sweeps: {dict(zip(map(str, trees), digests, strict=True))}"
+        )
+    times: list[list[float]] = [[] for _ in trees]
+    cpu: list[list[float]] = [[] for _ in trees]
+    try:
+        for _ in range(rounds + 1):  # the first round compiles (numba caches) and is left out
+            for i, p in enumerate(procs):
+                p.stdin.write("go\n")
+                p.stdin.flush()
+                wall, thread = p.stdout.readline().split()
+                times[i].append(float(wall))
+                cpu[i].append(float(thread))
+    finally:
+        for p in procs:
+            p.stdin.close()
+            p.wait()
+    return {
+        str(tree): {
+            "best_ms": min(t[1:]),
+            "median_ms": statistics.median(t[1:]),
+            "best_cpu_ms": min(c[1:]),
+            "median_cpu_ms": statistics.median(c[1:]),
+            "rounds_ms": t[1:],
+        }
+        for tree, t, c in zip(trees, times, cpu, strict=True)
+    }
+
+
 def fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.3f}"
 
@@ -180,7 +260,20 @@ def main() -> None:
     ap.add_argument("--coarse", action="append", default=[], metavar="NAME=VALUE", help="CoarseParams override")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--speed", action="store_true", help="only the speed before / after, in one process")
+    ap.add_argument(
+        "--against",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="DIR",
+        help="with --speed: the default detector of this checkout and of each DIR (another checkout), "
+        "in processes taking turns",
+    )
+    ap.add_argument("--rounds", type=int, default=8, help="with --speed: rounds per configuration (best taken)")
     args = ap.parse_args()
+    if args.speed and args.against:
+        print(json.dumps(speed_against(args.against, args.frames, args.rounds), indent=1))
+        return
     if args.speed:
         print(json.dumps(speed(), indent=1))
         return

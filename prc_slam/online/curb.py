@@ -24,12 +24,14 @@ Measured on 12 simulated profiler-urban blocks, paper readings -> ours: curb sec
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 from numba import njit
 
 from prc_slam.online import kernels as K
 from prc_slam.online.coarse import CoarseResult, elevation_rows, line_values
+from prc_slam.online.spinning import relabel
 from prc_slam.prc import kernels as prc_kernels
 from prc_slam.scan import Scan, SpinningSensor
 
@@ -152,8 +154,8 @@ def detect_curbs(
     regions_o, n = prc_kernels.connected_components_within(
         vertical[rows], xyz64.reshape(xyz.shape)[rows], p.max_gap, wrap
     )
-    if isinstance(rows, slice):  # a view: the same regions in the reader's row order
-        regions = regions_o[rows]
+    if isinstance(rows, slice):  # the same regions in the reader's row order, contiguous (every later
+        regions = np.ascontiguousarray(regions_o[rows])  # pass reads them in memory order; ravel makes no copy)
     else:
         regions = np.empty_like(regions_o)
         regions[rows] = regions_o
@@ -170,13 +172,13 @@ def detect_curbs(
         lab = regions.ravel()
         is_short = np.zeros(n + 1, bool)
         is_short[short] = True
-        members = np.flatnonzero(is_short[lab])  # the slots of these regions only
+        members = flagged_slots(lab, is_short)  # the slots of these regions only
         sv = coarse.sv.ravel()
         curv = np.abs(sv[members] - sv[_line_before(scan, members)])  # as np.diff along axis 0, sv[:1] prepended
         median = group_medians(lab[members], curv, short).astype(curv.dtype)  # float32, as np.median gives
         ok[short] = (size[short] >= 3) & (median <= p.max_curvature)
     ok[0] = False
-    mask = ok[regions]
+    mask = relabel(regions, ok)  # ok[regions]
     return CurbResult(mask, _polylines(regions, ok, _line_index(scan), xyz), possible)
 
 
@@ -230,6 +232,19 @@ def region_spacings(regions, wanted, ranges, gap_up):
                 spacing[m] = np.float32(np.float64(ranges[r, c]) * gap_up[r])
                 m += 1
     return ids[:m].copy(), spacing[:m].copy()
+
+
+@njit(cache=True, nogil=True)
+def flagged_slots(ids, flags):
+    """``np.flatnonzero(flags[ids])`` (``ids`` flat, e.g. region ids per slot; ``flags`` per id) in one
+    pass, without the mask over every slot."""
+    out = np.empty(ids.shape[0], np.int64)
+    m = 0
+    for i in range(ids.shape[0]):
+        if flags[ids[i]]:
+            out[m] = i
+            m += 1
+    return out[:m].copy()
 
 
 def _line_before(scan: Scan, slots: np.ndarray) -> np.ndarray:
@@ -316,7 +331,9 @@ def _polylines(regions: np.ndarray, ok: np.ndarray, line_index: np.ndarray, xyz:
     mean, owner = polyline_means(regions, ok, line_index, xyz.reshape(-1, 3))
     if not len(owner):
         return []
-    return np.split(mean.astype(np.float32), np.flatnonzero(owner[1:] != owner[:-1]) + 1)
+    mean = mean.astype(np.float32)
+    bounds = [0, *(np.flatnonzero(owner[1:] != owner[:-1]) + 1).tolist(), len(owner)]
+    return [mean[a:b] for a, b in pairwise(bounds)]  # np.split's pieces, without its per-piece overhead
 
 
 @njit(cache=True, nogil=True)

@@ -29,6 +29,11 @@ from prc_slam.scan import Scan
 from prc_slam.util.threads import in_threads
 
 HISTORY = 500
+#: numba's quicksort: partitions under this many samples are insertion-sorted (:func:`argsort_into`)
+SMALL_SORT = 15
+#: pending partitions :func:`argsort_into` can hold (numba's bound; the smaller side is sorted first, so
+#: at most log2 of the length are pending)
+ARGSORT_STACK = 100
 
 
 @njit(cache=True, nogil=True)
@@ -108,9 +113,10 @@ def single_mode(x, bandwidth):
 
 
 @njit(cache=True, nogil=True)
-def _potential_ground(codes, phi, first, run_len, phi_bw, srt, rank, cnt, tot):
+def _potential_ground(codes, phi, first, run_len, phi_bw, srt, rank, cnt, tot, order, stack):
     """Part (a) on the returns ``first..`` of one line: (start, end) of the potential-ground run
-    (end exclusive) or (-1, -1). ``srt, rank, cnt, tot``: scratch of :func:`_grow_single_mode`."""
+    (end exclusive) or (-1, -1). ``srt, rank, cnt, tot, order, stack``: scratch of :func:`_grow_single_mode`
+    (:func:`ground_scratch`)."""
     n = codes.shape[0]
     count = 0
     start = -1
@@ -131,7 +137,7 @@ def _potential_ground(codes, phi, first, run_len, phi_bw, srt, rank, cnt, tot):
     end, block = start + run_len, 4 * run_len
     while True:
         stop = min(end_max, start + block)
-        end = _grow_single_mode(phi, start, end, stop, phi_bw, srt, rank, cnt, tot)
+        end = _grow_single_mode(phi, start, end, stop, phi_bw, srt, rank, cnt, tot, order, stack)
         if end < stop or stop == end_max:
             return start, end
         block *= 4
@@ -155,6 +161,19 @@ def _fenwick_sum(tree, i):
     return s
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _fenwick_sums(tree_a, tree_b, i):
+    """:func:`_fenwick_sum` of two trees of one length over the first ``i`` entries, in one walk (each sum
+    adds the same entries in the same order as on its own)."""
+    a = 0.0
+    b = 0.0
+    while i > 0:
+        a += tree_a[i]
+        b += tree_b[i]
+        i -= i & -i
+    return a, b
+
+
 @njit(cache=True, nogil=True)
 def _track_mode_ranked(srt, cnt, tot, start, bandwidth):
     """:func:`_track_mode` over the samples entered in the Fenwick trees ``cnt`` / ``tot``
@@ -173,10 +192,12 @@ def _track_mode_ranked(srt, cnt, tot, start, bandwidth):
             i1 += 1
         while i1 > i0 and abs(srt[i1 - 1] - m) > bandwidth:
             i1 -= 1
-        c = _fenwick_sum(cnt, i1) - _fenwick_sum(cnt, i0)
+        c1, t1 = _fenwick_sums(cnt, tot, i1)
+        c0, t0 = _fenwick_sums(cnt, tot, i0)
+        c = c1 - c0
         if c <= 0.0:
             return m
-        new = (_fenwick_sum(tot, i1) - _fenwick_sum(tot, i0)) / c
+        new = (t1 - t0) / c
         if abs(new - m) < 1e-3 * bandwidth:
             return new
         m = new
@@ -194,38 +215,133 @@ def grow_single_mode(x, start, end, end_max, bandwidth):
     Fenwick trees (count and sum) over those ranks. Samples spanning at most one bandwidth
     need no search: every window then holds all of them, so both ends climb to their mean.
     """
-    n = max(0, end_max - start)
-    return _grow_single_mode(
-        x, start, end, end_max, bandwidth, np.empty(n), np.empty(n, np.int64), np.empty(n + 1), np.empty(n + 1)
-    )
+    return _grow_single_mode(x, start, end, end_max, bandwidth, *ground_scratch(max(0, end_max - start)))
 
 
 @njit(cache=True, nogil=True)
-def _grow_single_mode(x, start, end, end_max, bandwidth, srt_buf, rank, cnt_buf, tot_buf):
-    """:func:`grow_single_mode` with scratch arrays of at least ``end_max - start`` (+ 1) entries."""
+def ground_scratch(width):
+    """Scratch arrays for :func:`_grow_single_mode` over at most ``width`` samples (``srt, rank, cnt, tot,
+    order, stack``), made once for many lines."""
+    return (
+        np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1),
+        np.empty(width, np.int64), np.empty((ARGSORT_STACK, 2), np.int64),
+    )  # fmt: skip
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lt(a, b):
+    """numba's order of floats in its sorts: NaN last."""
+    return a < b or (np.isnan(b) and not np.isnan(a))
+
+
+@njit(cache=True, nogil=True)
+def _insertion_argsort(a, idx, low, high):
+    """numba's quicksort's insertion sort of ``idx[low:high + 1]`` by ``a`` (bounds inclusive)."""
+    for i in range(low + 1, high + 1):
+        k = idx[i]
+        v = a[k]
+        j = i
+        while j > low and _lt(v, a[idx[j - 1]]):
+            idx[j] = idx[j - 1]
+            j -= 1
+        idx[j] = k
+
+
+@njit(cache=True, nogil=True)
+def _partition_argsort(a, idx, low, high):
+    """numba's quicksort's partition of ``idx[low:high + 1]`` by ``a`` around the median of three; returns
+    the pivot's place."""
+    mid = (low + high) >> 1
+    if _lt(a[idx[mid]], a[idx[low]]):
+        idx[low], idx[mid] = idx[mid], idx[low]
+    if _lt(a[idx[high]], a[idx[mid]]):
+        idx[high], idx[mid] = idx[mid], idx[high]
+    if _lt(a[idx[mid]], a[idx[low]]):
+        idx[low], idx[mid] = idx[mid], idx[low]
+    pivot = a[idx[mid]]
+    idx[high], idx[mid] = idx[mid], idx[high]
+    i = low
+    j = high - 1
+    while True:
+        while i < high and _lt(a[idx[i]], pivot):
+            i += 1
+        while j >= low and _lt(pivot, a[idx[j]]):
+            j -= 1
+        if i >= j:
+            break
+        idx[i], idx[j] = idx[j], idx[i]
+        i += 1
+        j -= 1
+    idx[i], idx[high] = idx[high], idx[i]
+    return i
+
+
+@njit(cache=True, nogil=True)
+def argsort_into(a, idx, stack):
+    """``np.argsort(a)`` as numba computes it in a kernel (its quicksort: the same permutation, ties and
+    NaNs included) written into ``idx[:len(a)]``, with ``stack`` (``ARGSORT_STACK x 2`` int64) for its
+    pending partitions: no array made per call (the ground's part (a) sorts the line angles of every
+    scan line's run; the allocation cost as much as the sort)."""
+    n = a.shape[0]
+    for i in range(n):
+        idx[i] = i
+    if n < 2:
+        return
+    stack[0, 0] = 0
+    stack[0, 1] = n - 1
+    top = 1
+    while top > 0:
+        top -= 1
+        low, high = stack[top, 0], stack[top, 1]
+        while high - low >= SMALL_SORT:  # partition until an insertion sort is cheaper
+            i = _partition_argsort(a, idx, low, high)
+            if high - i > i - low:  # the larger side waits on the stack
+                if high > i:
+                    stack[top, 0], stack[top, 1] = i + 1, high
+                    top += 1
+                high = i - 1
+            else:
+                if i > low:
+                    stack[top, 0], stack[top, 1] = low, i - 1
+                    top += 1
+                low = i + 1
+        if high > low:
+            _insertion_argsort(a, idx, low, high)
+
+
+@njit(cache=True, nogil=True)
+def _grow_single_mode(x, start, end, end_max, bandwidth, srt_buf, rank, cnt_buf, tot_buf, order_buf, stack):
+    """:func:`grow_single_mode` with scratch arrays of at least ``end_max - start`` (+ 1) entries
+    (:func:`ground_scratch`)."""
     if end >= end_max:
         return end_max
     vals = x[start:end_max]
     nv = vals.shape[0]
-    order = np.argsort(vals)
+    # the ranks and the Fenwick trees are made when the samples first spread over more than one bandwidth (a
+    # line whose samples never do needs neither), the samples so far entered then in order: the same trees
+    ranked = 0  # samples entered in the trees
     srt = srt_buf[:nv]
-    for i in range(nv):
-        srt[i] = vals[order[i]]
-        rank[order[i]] = i
     cnt = cnt_buf[: nv + 1]
     tot = tot_buf[: nv + 1]
-    cnt[:] = 0.0
-    tot[:] = 0.0
     lo = np.inf
     hi = -np.inf
-    for e in range(end_max - start):
+    for e in range(nv):
         v = vals[e]
-        _fenwick_add(cnt, rank[e], 1.0)
-        _fenwick_add(tot, rank[e], v)
         lo = min(lo, v)
         hi = max(hi, v)
         if e + start < end or hi - lo <= bandwidth:  # within one bandwidth: a single mode
             continue
+        if ranked == 0:
+            argsort_into(vals, order_buf, stack)
+            for i in range(nv):
+                srt[i] = vals[order_buf[i]]
+                rank[order_buf[i]] = i
+            cnt[:] = 0.0
+            tot[:] = 0.0
+        while ranked <= e:
+            _fenwick_add(cnt, rank[ranked], 1.0)
+            _fenwick_add(tot, rank[ranked], vals[ranked])
+            ranked += 1
         a = _track_mode_ranked(srt, cnt, tot, lo, bandwidth)
         b = _track_mode_ranked(srt, cnt, tot, hi, bandwidth)
         if abs(b - a) >= bandwidth / 2:
@@ -237,8 +353,14 @@ def _grow_single_mode(x, start, end, end_max, bandwidth, srt_buf, rank, cnt_buf,
 def _lowest_mean(z, k):
     """The mean of the ``k`` lowest of ``z`` (all if fewer), summed from the lowest up: the value
     of ``np.sort(z)[:k].mean()``, without sorting the rest."""
+    return _lowest_mean_into(z, k, np.empty(min(k, z.shape[0])))
+
+
+@njit(cache=True, nogil=True)
+def _lowest_mean_into(z, k, low):
+    """:func:`_lowest_mean` with ``low`` (at least ``min(k, len(z))`` entries) as its scratch: no array
+    made per call (one call per scan line with a potential-ground run)."""
     m = min(k, z.shape[0])
-    low = np.empty(m)
     n = 0
     for v in z:  # insertion into the m lowest so far, ascending
         if n == m and not v < low[m - 1]:
@@ -264,11 +386,10 @@ def first_runs(codes, phi, count, lo, hi, run_len, phi_bw, run_a, run_b):
     It does not depend on ``z_d``: this bulk of the ground algorithm's work is done for all lines
     independently (in threads, :func:`all_first_runs`) before the sequential pass of part (b),
     :func:`ground_lines`."""
-    width = codes.shape[1]
-    srt, rank, cnt, tot = np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1)
+    scratch = ground_scratch(codes.shape[1])
     for li in range(lo, hi):
         m = count[li]
-        run_a[li], run_b[li] = _potential_ground(codes[li, :m], phi[li, :m], 0, run_len, phi_bw, srt, rank, cnt, tot)
+        run_a[li], run_b[li] = _potential_ground(codes[li, :m], phi[li, :m], 0, run_len, phi_bw, *scratch)
 
 
 def all_first_runs(returns: LineReturns, run_len: int, phi_bw: float) -> tuple[np.ndarray, np.ndarray]:
@@ -309,8 +430,8 @@ def ground_lines(
     ground = np.zeros(n_slots, np.bool_)
     line_height = np.full(n_lines, np.nan)
     pending = np.zeros(n_lines, np.bool_)  # lines seen before z_d existed
-    width = pts_all.shape[1]
-    srt, rank, cnt, tot = np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1)
+    scratch = ground_scratch(pts_all.shape[1])
+    low5 = np.empty(5)  # _lowest_mean_into's
     for li in range(n_lines):
         m = count[li]
         pts = pts_all[li, :m]
@@ -322,10 +443,10 @@ def ground_lines(
             if first == 0:
                 a, b = run_a[li], run_b[li]
             else:
-                a, b = _potential_ground(codes, phi, first, run_len, phi_bw, srt, rank, cnt, tot)
+                a, b = _potential_ground(codes, phi, first, run_len, phi_bw, *scratch)
             if a < 0:
                 break
-            zi = _lowest_mean(zs[a:b], 5)
+            zi = _lowest_mean_into(zs[a:b], 5, low5)
             if not have_zd:
                 z_hist[n_hist % z_hist.shape[0]] = zi
                 n_hist += 1

@@ -212,7 +212,7 @@ def segment_candidates(
     above the ground (``height``) count, the segment's upper outline, where a car has its roof
     and a trunk goes on up (a shrub at its foot adds low tops that would dilute the share)."""
     R, C = cand.shape
-    parent = np.arange(R * C + 1).astype(np.int64)
+    parent = np.arange(R * C + 1)  # int64 (numba's arange of an int64 count); no copy by astype
     for r in range(R):
         for c in range(C):
             if not cand[r, c]:

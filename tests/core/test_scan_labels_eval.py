@@ -31,6 +31,41 @@ def test_scan_normalises_nan_and_rejects_inf():
         Scan(np.ones((2, 3)), sensor, gt_labels=np.zeros((3, 2), np.uint8))
 
 
+@settings(max_examples=30, deadline=None)
+@given(
+    rows=st.integers(1, 5),
+    cols=st.integers(1, 9),
+    seed=st.integers(0, 2**32 - 1),
+    order=st.sampled_from(["C", "F", "reversed"]),
+)
+def test_to_xyz_kernel_is_the_broadcast_product(rows, cols, seed, order):
+    """``to_xyz``'s one-pass kernel gives numpy's ``unit_rays * ranges[..., None]`` bit for bit (float32
+    products; zeros stay zeros), for any memory layout of the ranges; a wrong shape is refused."""
+    rng = np.random.default_rng(seed)
+    sensor = SpinningSensor.create(np.sort(rng.uniform(-0.4, 0.2, rows)), cols)
+    ranges = (rng.uniform(0.0, 120.0, (rows, cols)) * (rng.random((rows, cols)) > 0.2)).astype(np.float32)
+    if order == "F":
+        ranges = np.asfortranarray(ranges)
+    elif order == "reversed":
+        ranges = ranges[::-1]
+    xyz = sensor.to_xyz(ranges)
+    expected = sensor.unit_rays * np.asarray(ranges, dtype=np.float32)[..., None]
+    assert xyz.dtype == np.float32 and xyz.shape == (rows, cols, 3) and xyz.flags.c_contiguous
+    assert xyz.tobytes() == expected.tobytes()
+    assert (xyz[ranges == 0] == 0).all()
+    with pytest.raises(ScanError, match="does not match sensor"):
+        sensor.to_xyz(np.ones((rows + 1, cols)))
+
+
+def test_to_xyz_kernel_hand_computed():
+    """One beam at 0 elevation, four columns (azimuths 45, 135, 225, 315 deg): range 2 lands at
+    2 (cos, sin, 0) of the azimuth; range 0 at the origin."""
+    sensor = SpinningSensor.create(np.radians([0.0]), 4)
+    xyz = sensor.to_xyz(np.array([[2.0, 0.0, 2.0, 2.0]]))
+    h = np.float32(np.sqrt(2.0))
+    np.testing.assert_allclose(xyz[0], [[h, h, 0], [0, 0, 0], [-h, -h, 0], [h, -h, 0]], atol=1e-6)
+
+
 def test_spinning_directions_hand_computed():
     s = SpinningSensor.create(np.radians([0.0, 30.0]), 4)
     xyz = s.to_xyz(np.full((2, 4), 2.0))

@@ -12,7 +12,7 @@ from numba import njit
 from prc_slam.online import kernels as K
 from prc_slam.online.car import oriented_box, oriented_boxes_of
 from prc_slam.online.curb import _polylines, group_medians, possible_curbs, region_stats
-from prc_slam.online.ground import _lowest_mean
+from prc_slam.online.ground import _fenwick_add, _lowest_mean, _track_mode_ranked
 from prc_slam.online.spinning import _heights, graph_components, relabel, segment_tops
 
 SETTINGS = settings(max_examples=60, deadline=None)
@@ -374,7 +374,7 @@ def test_first_runs_are_part_a_from_each_line_start(seed, n_lines, width):
     """The threaded pre-pass of the ground algorithm: each line's first potential-ground run, as
     :func:`_potential_ground` finds it on the line's returns (rows of any width, ``count`` used)."""
     from prc_slam.online.coarse import LineReturns
-    from prc_slam.online.ground import _potential_ground, all_first_runs
+    from prc_slam.online.ground import _potential_ground, all_first_runs, ground_scratch
 
     rng = np.random.default_rng(seed)
     returns = LineReturns.empty(n_lines, width)
@@ -382,7 +382,7 @@ def test_first_runs_are_part_a_from_each_line_start(seed, n_lines, width):
     returns.phi[:] = rng.normal(0.0, rng.choice([2.0, 8.0]), (n_lines, width))
     returns.count[:] = rng.integers(0, width + 1, n_lines)
     run_a, run_b = all_first_runs(returns, 10, 10.0)
-    scratch = (np.empty(width), np.empty(width, np.int64), np.empty(width + 1), np.empty(width + 1))
+    scratch = ground_scratch(width)
     for li in range(n_lines):
         m = returns.count[li]
         codes, phi = returns.codes[li, :m], returns.phi[li, :m]
@@ -497,3 +497,117 @@ def test_curb_polylines_are_their_definition(seed, rows, cols, by_column):
     for g, r in zip(got, ref, strict=True):
         assert g.dtype == np.float32
         np.testing.assert_array_equal(g, r)
+
+
+@njit(cache=False)
+def _numba_argsort(a):
+    return np.argsort(a)
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(0, 90), st.sampled_from(["spread", "ties", "nan"]))
+def test_argsort_into_is_numbas_argsort(seed, n, kind):
+    """The ground's allocation-free argsort gives numba's ``np.argsort`` permutation exactly (quicksort:
+    ties keep the order its partitions leave them in, NaNs last), into a dirty buffer longer than the data."""
+    from prc_slam.online.ground import ARGSORT_STACK, argsort_into
+
+    rng = np.random.default_rng(seed)
+    a = rng.normal(0.0, 10.0, n)
+    if kind == "ties":
+        a = np.round(a / 5.0) * 5.0  # a handful of distinct values, each many times
+    elif kind == "nan" and n:
+        a[rng.random(n) < 0.2] = np.nan
+    idx = np.full(n + 7, -3, np.int64)
+    argsort_into(a, idx, np.full((ARGSORT_STACK, 2), -1, np.int64))
+    np.testing.assert_array_equal(idx[:n], _numba_argsort(a))
+    assert (idx[n:] == -3).all()
+
+
+def test_argsort_into_hand_computed():
+    """Equal values in numba's quicksort order (insertion sort under 15 samples: stable), NaN last."""
+    from prc_slam.online.ground import ARGSORT_STACK, argsort_into
+
+    idx = np.empty(5, np.int64)
+    argsort_into(np.array([3.0, np.nan, 1.0, 3.0, -2.0]), idx, np.empty((ARGSORT_STACK, 2), np.int64))
+    assert idx.tolist() == [4, 2, 0, 3, 1]
+
+
+@njit(cache=False)
+def _grow_single_mode_eager(x, start, end, end_max, bandwidth):
+    """Part (a)'s growth as it was written before its ranks and trees were made lazily: every sample
+    ranked (numba's ``np.argsort``) and entered in the Fenwick trees as it comes."""
+    if end >= end_max:
+        return end_max
+    vals = x[start:end_max]
+    nv = vals.shape[0]
+    order = np.argsort(vals)
+    srt = np.empty(nv)
+    rank = np.empty(nv, np.int64)
+    for i in range(nv):
+        srt[i] = vals[order[i]]
+        rank[order[i]] = i
+    cnt = np.zeros(nv + 1)
+    tot = np.zeros(nv + 1)
+    lo = np.inf
+    hi = -np.inf
+    for e in range(nv):
+        v = vals[e]
+        _fenwick_add(cnt, rank[e], 1.0)
+        _fenwick_add(tot, rank[e], v)
+        lo = min(lo, v)
+        hi = max(hi, v)
+        if e + start < end or hi - lo <= bandwidth:
+            continue
+        a = _track_mode_ranked(srt, cnt, tot, lo, bandwidth)
+        b = _track_mode_ranked(srt, cnt, tot, hi, bandwidth)
+        if abs(b - a) >= bandwidth / 2:
+            return e + start
+    return end_max
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(1, 80), st.sampled_from([0.5, 3.0, 8.0, 20.0]))
+def test_growth_with_lazy_ranks_is_the_eager_one(seed, n, spread):
+    """Part (a)'s growth, whose ranks and Fenwick trees wait until the samples spread over one bandwidth
+    (then take the samples so far in order), ends where the eager form ends, from any start and first end,
+    on narrow, wide, drifting and tied line angles."""
+    from prc_slam.online.ground import grow_single_mode
+
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0.0, spread, n) + np.linspace(0.0, rng.choice([0.0, 30.0]), n)
+    if rng.random() < 0.3:
+        x = np.round(x)
+    start = int(rng.integers(0, n))
+    end = int(rng.integers(start, n + 1))
+    for bandwidth in (1.0, 10.0):
+        assert grow_single_mode(x, start, end, n, bandwidth) == _grow_single_mode_eager(x, start, end, n, bandwidth)
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(0, 200), st.integers(1, 12))
+def test_curb_region_lookups_are_numpys(seed, n_slots, n_ids):
+    """Sec. 6's per-region lookups over the image: the slots of flagged regions and the mask of accepted
+    ones, as numpy's ``np.flatnonzero(flags[ids])`` and ``ok[regions]`` give them."""
+    from prc_slam.online.curb import flagged_slots
+
+    rng = np.random.default_rng(seed)
+    ids = rng.integers(0, n_ids, n_slots).astype(np.int32)
+    flags = rng.random(n_ids) < 0.4
+    got = flagged_slots(ids, flags)
+    assert got.dtype == np.int64
+    np.testing.assert_array_equal(got, np.flatnonzero(flags[ids]))
+    regions = ids.reshape(1, -1) if n_slots % 3 else ids.reshape(-1, 3) if n_slots else ids.reshape(0, 3)
+    mask = relabel(regions, flags)
+    assert mask.dtype == np.bool_
+    np.testing.assert_array_equal(mask, flags[regions])
+
+
+def test_flagged_slots_hand_computed():
+    assert flagged_slots_of([0, 2, 1, 2, 0], [False, True, True]) == [1, 2, 3]
+    assert flagged_slots_of([], [True]) == []
+
+
+def flagged_slots_of(ids: list[int], flags: list[bool]) -> list[int]:
+    from prc_slam.online.curb import flagged_slots
+
+    return flagged_slots(np.array(ids, np.int64), np.array(flags)).tolist()
