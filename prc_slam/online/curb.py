@@ -31,7 +31,6 @@ from numba import njit
 
 from prc_slam.online import kernels as K
 from prc_slam.online.coarse import CoarseResult, elevation_rows, line_values
-from prc_slam.online.spinning import relabel
 from prc_slam.prc import kernels as prc_kernels
 from prc_slam.scan import Scan, SpinningSensor
 
@@ -178,7 +177,7 @@ def detect_curbs(
         median = group_medians(lab[members], curv, short).astype(curv.dtype)  # float32, as np.median gives
         ok[short] = (size[short] >= 3) & (median <= p.max_curvature)
     ok[0] = False
-    mask = relabel(regions, ok)  # ok[regions]
+    mask = K.relabel(regions, ok)  # ok[regions]
     return CurbResult(mask, _polylines(regions, ok, _line_index(scan), xyz), possible)
 
 

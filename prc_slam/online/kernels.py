@@ -478,3 +478,14 @@ def mean_shift_cusum_into(x, mu_a, mu_b, sigma, h, out):
             w = 0.0
             start = k + 1
         out[k] = state == 1
+
+
+@njit(cache=True, nogil=True)
+def relabel(seg, lut):
+    """``lut[seg]`` for an image of ids (what numpy's indexing gives, without converting every
+    id to a pointer-sized index first)."""
+    out = np.empty(seg.shape, lut.dtype)
+    flat, src = out.reshape(-1), seg.reshape(-1)
+    for i in range(src.shape[0]):
+        flat[i] = lut[src[i]]
+    return out

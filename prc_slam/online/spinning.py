@@ -85,6 +85,7 @@ from numba import njit
 
 from prc_slam.online.car import oriented_boxes_of
 from prc_slam.online.coarse import elevation_rows
+from prc_slam.online.kernels import relabel
 from prc_slam.scan import Scan, SpinningSensor
 from prc_slam.util import unionfind as uf
 from prc_slam.util.threads import in_threads
@@ -167,17 +168,6 @@ class SpinningCarParams:
     # across beams that returned nothing though they point at the ground within the sweep's range (glass, dark
     # paint: a car's window band seen from beside it), capped at max_top_gap (False: the next beam's gap)
     missing_top: bool = True
-
-
-@njit(cache=True, nogil=True)
-def relabel(seg, lut):
-    """``lut[seg]`` for an image of ids (what numpy's indexing gives, without converting every
-    id to a pointer-sized index first)."""
-    out = np.empty(seg.shape, lut.dtype)
-    flat, src = out.reshape(-1), seg.reshape(-1)
-    for i in range(src.shape[0]):
-        flat[i] = lut[src[i]]
-    return out
 
 
 @njit(cache=True, nogil=True)

@@ -13,7 +13,8 @@ from prc_slam.online import kernels as K
 from prc_slam.online.car import oriented_box, oriented_boxes_of
 from prc_slam.online.curb import _polylines, group_medians, possible_curbs, region_stats
 from prc_slam.online.ground import _fenwick_add, _lowest_mean, _track_mode_ranked
-from prc_slam.online.spinning import _heights, graph_components, relabel, segment_tops
+from prc_slam.online.kernels import relabel
+from prc_slam.online.spinning import _heights, graph_components, segment_tops
 
 SETTINGS = settings(max_examples=60, deadline=None)
 
