@@ -205,7 +205,7 @@ def _projector(P, kind, m, g, table, coords, first, count, mpts, inv_voxel, min_
 @njit(cache=True, nogil=True)
 def _linearise(
     src, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, inv_voxel, max_d2, kernel, T,
-    n_chunks,
+    n_chunks, matched, projectors,
 ):  # fmt: skip
     """Gauss-Newton normal equations at ``T``, accumulated per chunk of source points (serially:
     numba's thread pool, spinning on a machine whose cores are busy, cost 12x the work itself on
@@ -214,7 +214,10 @@ def _linearise(
 
     Each correspondence's residual is ``P (p - q)`` with the projector of its group's residual
     kind (``kinds``, :func:`_projector`): ``H += w J^T P J``, ``b += w J^T P r`` (``P`` symmetric
-    and idempotent), the Geman-McClure weight ``w`` of the projected residual."""
+    and idempotent), the Geman-McClure weight ``w`` of the projected residual. ``matched`` (n,) and
+    ``projectors`` (n, 3, 3) keep each source point's map point and projector from one iteration to
+    the next (the map does not change within a registration): a projector is computed again only
+    when its point matches another map point (``matched`` -1 at first)."""
     n = src.shape[0]
     G = weights.shape[0]
     H = np.zeros((n_chunks, 6, 6))
@@ -228,7 +231,6 @@ def _linearise(
         p = np.empty(3)
         r = np.empty(3)
         Pr = np.empty(3)
-        P = np.eye(3)
         J = np.zeros((3, 6))
         PJ = np.zeros((3, 6))
         J[0, 0] = J[1, 1] = J[2, 2] = 1.0
@@ -244,7 +246,10 @@ def _linearise(
             counts[c, g] += 1
             partner[i] = g
             r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
-            _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
+            P = projectors[i]
+            if matched[i] != q:
+                _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
+                matched[i] = q
             for k in range(3):
                 Pr[k] = P[k, 0] * r[0] + P[k, 1] * r[1] + P[k, 2] * r[2]
             rr = Pr[0] * r[0] + Pr[1] * r[1] + Pr[2] * r[2]  # |P r|^2 = r^T P r
@@ -331,12 +336,14 @@ def icp(
         kinds = np.zeros(weights.shape[0], np.int64)
     counts = np.zeros(weights.shape[0], np.int64)
     partner = np.full(src.shape[0], -1, np.int64)
+    matched = np.full(src.shape[0], -1, np.int64)
+    projectors = np.empty((src.shape[0], 3, 3))
     iterations = 0
     while iterations < max_iter:
         iterations += 1
         Hc, bc, cc, partner = _linearise(
             src, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, 1.0 / voxel,
-            max_dist * max_dist, kernel, T, 8,
+            max_dist * max_dist, kernel, T, 8, matched, projectors,
         )  # fmt: skip
         H = Hc.sum(axis=0)
         b = bc.sum(axis=0)
@@ -357,12 +364,13 @@ def icp(
 
 @njit(cache=True, nogil=True)
 def _linearise_sweep(src, s, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, inv_voxel, max_d2,
-                     kernel, T):  # fmt: skip
+                     kernel, T, matched, projectors):  # fmt: skip
     """The normal equations of :func:`_linearise` in the pose and the sweep's velocity: 12 unknowns,
     ``(dx, dv)``, the residual of point ``i`` (deskewed to the reference instant, ``s_i`` its time
     from it in frame intervals) moving by ``J dx + s_i R [I, -[p_i]x] dv`` (``R`` the pose's
     rotation, ``p_i`` the deskewed point: a change ``dv`` of the velocity moves it by
-    ``exp(s_i dv)``). ``H (12, 12)``, ``b (12,)``, correspondences per group, the weight sum."""
+    ``exp(s_i dv)``; ``matched``, ``projectors``: as :func:`_linearise`'s). ``H (12, 12)``, ``b (12,)``,
+    correspondences per group, the weight sum."""
     G = weights.shape[0]
     H = np.zeros((12, 12))
     b = np.zeros(12)
@@ -372,7 +380,6 @@ def _linearise_sweep(src, s, src_group, weights, kinds, min_shape, table, coords
     p = np.empty(3)
     r = np.empty(3)
     Pr = np.empty(3)
-    P = np.eye(3)
     J = np.zeros((3, 12))
     PJ = np.zeros((3, 12))
     wsum = 0.0
@@ -387,7 +394,10 @@ def _linearise_sweep(src, s, src_group, weights, kinds, min_shape, table, coords
             continue
         counts[g] += 1
         r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
-        _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
+        P = projectors[i]
+        if matched[i] != q:
+            _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
+            matched[i] = q
         for k in range(3):
             Pr[k] = P[k, 0] * r[0] + P[k, 1] * r[1] + P[k, 2] * r[2]
         rr = Pr[0] * r[0] + Pr[1] * r[1] + Pr[2] * r[2]
@@ -443,13 +453,15 @@ def icp_sweep(src0, s, src_group, weights, kinds, min_shape, table, coords, firs
     v = np.zeros(6)
     counts = np.zeros(weights.shape[0], np.int64)
     src = src0.copy()
+    matched = np.full(src0.shape[0], -1, np.int64)
+    projectors = np.empty((src0.shape[0], 3, 3))
     iterations = 0
     inv_voxel = 1.0 / voxel
     while iterations < max_iter:
         iterations += 1
         H, b, counts, _ = _linearise_sweep(
             src, s, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, inv_voxel,
-            max_dist * max_dist, kernel, T,
+            max_dist * max_dist, kernel, T, matched, projectors,
         )  # fmt: skip
         if counts.sum() < MIN_CORRESPONDENCES:
             break

@@ -295,7 +295,8 @@ def test_point_to_line_gradient_and_information_match_finite_differences():
     weights = np.ones(len(GROUP_NAMES))
     kernel = 1e9  # the Geman-McClure weight is 1 to within 1e-9
     H, b, counts, _ = _linearise(
-        src, np.array([TRUNK]), weights, kinds, 0.5, *gmap.index(), 1.0, 4.0, kernel, T, 1
+        src, np.array([TRUNK]), weights, kinds, 0.5, *gmap.index(), 1.0, 4.0, kernel, T, 1, np.full(1, -1),
+        np.empty((1, 3, 3)),
     )  # fmt: skip
     assert counts[0, TRUNK] == 1
     p = T[:3, :3] @ src[0] + T[:3, 3]
@@ -344,7 +345,8 @@ def test_stems_to_their_lines_fix_x_y_and_yaw_not_the_height(kind):
     assert np.abs(T[:2, 3]).max() < 0.01
     assert (abs(T[2, 3]) < 0.01) == (kind == "line")  # point to point: the height slides with the sampling
     assert abs(np.degrees(np.arctan2(T[1, 0], T[0, 0]))) < 0.05
-    H = _linearise(frame, group, weights, kinds, 0.5, *gmap.index(), 1.0, 0.36, 0.2, T, 1)[0][0]
+    cache = np.full(len(frame), -1), np.empty((len(frame), 3, 3))
+    H = _linearise(frame, group, weights, kinds, 0.5, *gmap.index(), 1.0, 0.36, 0.2, T, 1, *cache)[0][0]
     assert (H[2, 2] < 0.1 * min(H[0, 0], H[1, 1])) == (kind == "line")
     with pytest.raises(ValueError, match="unknown class groups"):
         ClassAwareConfig(residuals={"stem": "line"}).kind_array()
@@ -364,7 +366,7 @@ def test_sweep_velocity_gradient_matches_finite_differences():
     T = np.array([[c, -sn, 0, 0.05], [sn, c, 0, -0.04], [0, 0, 1, 0.3], [0, 0, 0, 1.0]])
     kinds = np.array([1, 0, 0, 0, 0], np.int64)
     H, b, counts, _ = _linearise_sweep(src, s, np.array([TRUNK]), np.ones(len(GROUP_NAMES)), kinds, 0.5, *idx, 1.0,
-                                       4.0, 1e9, T)  # fmt: skip
+                                       4.0, 1e9, T, np.full(1, -1), np.empty((1, 3, 3)))  # fmt: skip
     assert counts[TRUNK] == 1
     p = T[:3, :3] @ src[0] + T[:3, 3]
     q = nearest_map_point(p, TRUNK, *idx, 1.0, 4.0)[0]
