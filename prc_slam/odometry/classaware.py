@@ -205,7 +205,7 @@ def _projector(P, kind, m, g, table, coords, first, count, mpts, inv_voxel, min_
 @njit(cache=True, nogil=True)
 def _linearise(
     src, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, inv_voxel, max_d2, kernel, T,
-    n_chunks, matched, projectors,
+    n_chunks, matched, projectors, refresh=True,
 ):  # fmt: skip
     """Gauss-Newton normal equations at ``T``, accumulated per chunk of source points (serially:
     numba's thread pool, spinning on a machine whose cores are busy, cost 12x the work itself on
@@ -217,7 +217,8 @@ def _linearise(
     and idempotent), the Geman-McClure weight ``w`` of the projected residual. ``matched`` (n,) and
     ``projectors`` (n, 3, 3) keep each source point's map point and projector from one iteration to
     the next (the map does not change within a registration): a projector is computed again only
-    when its point matches another map point (``matched`` -1 at first)."""
+    when its point matches another map point (``matched`` -1 at first), and only while ``refresh``
+    (:data:`FREEZE_PROJECTORS`)."""
     n = src.shape[0]
     G = weights.shape[0]
     H = np.zeros((n_chunks, 6, 6))
@@ -247,7 +248,7 @@ def _linearise(
             partner[i] = g
             r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
             P = projectors[i]
-            if matched[i] != q:
+            if matched[i] < 0 or (refresh and matched[i] != q):
                 _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
                 matched[i] = q
             for k in range(3):
@@ -269,6 +270,12 @@ def _linearise(
     return H, b, counts, partner
 
 
+#: after this many ICP iterations each source point keeps the projector (its line or plane) it has,
+#: whichever map point it matches: a point between two neighbourhoods of different shapes (a stem's
+#: line and a point-to-point fallback, two stems) would otherwise switch its residual from one
+#: iteration to the next and the Gauss-Newton cycle without converging (two frames of the dev walks
+#: at 516 and 530 iterations, one held-out walk stopped at the 500-iteration limit)
+FREEZE_PROJECTORS = 10
 #: fewer correspondences than this end the ICP at its current estimate (6 unknowns)
 MIN_CORRESPONDENCES = 12
 #: eigenvalues of H below this fraction of the largest are directions the correspondences do
@@ -343,7 +350,7 @@ def icp(
         iterations += 1
         Hc, bc, cc, partner = _linearise(
             src, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, 1.0 / voxel,
-            max_dist * max_dist, kernel, T, 8, matched, projectors,
+            max_dist * max_dist, kernel, T, 8, matched, projectors, iterations <= FREEZE_PROJECTORS,
         )  # fmt: skip
         H = Hc.sum(axis=0)
         b = bc.sum(axis=0)
@@ -364,7 +371,7 @@ def icp(
 
 @njit(cache=True, nogil=True)
 def _linearise_sweep(src, s, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, inv_voxel, max_d2,
-                     kernel, T, matched, projectors):  # fmt: skip
+                     kernel, T, matched, projectors, refresh=True):  # fmt: skip
     """The normal equations of :func:`_linearise` in the pose and the sweep's velocity: 12 unknowns,
     ``(dx, dv)``, the residual of point ``i`` (deskewed to the reference instant, ``s_i`` its time
     from it in frame intervals) moving by ``J dx + s_i R [I, -[p_i]x] dv`` (``R`` the pose's
@@ -395,7 +402,7 @@ def _linearise_sweep(src, s, src_group, weights, kinds, min_shape, table, coords
         counts[g] += 1
         r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
         P = projectors[i]
-        if matched[i] != q:
+        if matched[i] < 0 or (refresh and matched[i] != q):
             _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
             matched[i] = q
         for k in range(3):
@@ -461,7 +468,7 @@ def icp_sweep(src0, s, src_group, weights, kinds, min_shape, table, coords, firs
         iterations += 1
         H, b, counts, _ = _linearise_sweep(
             src, s, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, inv_voxel,
-            max_dist * max_dist, kernel, T, matched, projectors,
+            max_dist * max_dist, kernel, T, matched, projectors, iterations <= FREEZE_PROJECTORS,
         )  # fmt: skip
         if counts.sum() < MIN_CORRESPONDENCES:
             break
