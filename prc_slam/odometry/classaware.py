@@ -205,7 +205,7 @@ def _projector(P, kind, m, g, table, coords, first, count, mpts, inv_voxel, min_
 @njit(cache=True, nogil=True)
 def _linearise(
     src, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, inv_voxel, max_d2, kernel, T,
-    n_chunks, matched, projectors, refresh=True,
+    n_chunks, matched, projectors,
 ):  # fmt: skip
     """Gauss-Newton normal equations at ``T``, accumulated per chunk of source points (serially:
     numba's thread pool, spinning on a machine whose cores are busy, cost 12x the work itself on
@@ -217,8 +217,7 @@ def _linearise(
     and idempotent), the Geman-McClure weight ``w`` of the projected residual. ``matched`` (n,) and
     ``projectors`` (n, 3, 3) keep each source point's map point and projector from one iteration to
     the next (the map does not change within a registration): a projector is computed again only
-    when its point matches another map point (``matched`` -1 at first), and only while ``refresh``
-    (:data:`FREEZE_PROJECTORS`)."""
+    when its point matches another map point (``matched`` -1 at first)."""
     n = src.shape[0]
     G = weights.shape[0]
     H = np.zeros((n_chunks, 6, 6))
@@ -248,7 +247,7 @@ def _linearise(
             partner[i] = g
             r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
             P = projectors[i]
-            if matched[i] < 0 or (refresh and matched[i] != q):
+            if matched[i] != q:
                 _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
                 matched[i] = q
             for k in range(3):
@@ -270,12 +269,6 @@ def _linearise(
     return H, b, counts, partner
 
 
-#: after this many ICP iterations each source point keeps the projector (its line or plane) it has,
-#: whichever map point it matches: a point between two neighbourhoods of different shapes (a stem's
-#: line and a point-to-point fallback, two stems) would otherwise switch its residual from one
-#: iteration to the next and the Gauss-Newton cycle without converging (two frames of the dev walks
-#: at 516 and 530 iterations, one held-out walk stopped at the 500-iteration limit)
-FREEZE_PROJECTORS = 10
 #: fewer correspondences than this end the ICP at its current estimate (6 unknowns)
 MIN_CORRESPONDENCES = 12
 #: eigenvalues of H below this fraction of the largest are directions the correspondences do
@@ -350,7 +343,7 @@ def icp(
         iterations += 1
         Hc, bc, cc, partner = _linearise(
             src, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, 1.0 / voxel,
-            max_dist * max_dist, kernel, T, 8, matched, projectors, iterations <= FREEZE_PROJECTORS,
+            max_dist * max_dist, kernel, T, 8, matched, projectors,
         )  # fmt: skip
         H = Hc.sum(axis=0)
         b = bc.sum(axis=0)
@@ -371,7 +364,7 @@ def icp(
 
 @njit(cache=True, nogil=True)
 def _linearise_sweep(src, s, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, inv_voxel, max_d2,
-                     kernel, T, matched, projectors, refresh=True):  # fmt: skip
+                     kernel, T, matched, projectors):  # fmt: skip
     """The normal equations of :func:`_linearise` in the pose and the sweep's velocity: 12 unknowns,
     ``(dx, dv)``, the residual of point ``i`` (deskewed to the reference instant, ``s_i`` its time
     from it in frame intervals) moving by ``J dx + s_i R [I, -[p_i]x] dv`` (``R`` the pose's
@@ -402,7 +395,7 @@ def _linearise_sweep(src, s, src_group, weights, kinds, min_shape, table, coords
         counts[g] += 1
         r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
         P = projectors[i]
-        if matched[i] < 0 or (refresh and matched[i] != q):
+        if matched[i] != q:
             _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
             matched[i] = q
         for k in range(3):
@@ -468,7 +461,7 @@ def icp_sweep(src0, s, src_group, weights, kinds, min_shape, table, coords, firs
         iterations += 1
         H, b, counts, _ = _linearise_sweep(
             src, s, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, inv_voxel,
-            max_dist * max_dist, kernel, T, matched, projectors, iterations <= FREEZE_PROJECTORS,
+            max_dist * max_dist, kernel, T, matched, projectors,
         )  # fmt: skip
         if counts.sum() < MIN_CORRESPONDENCES:
             break
@@ -507,6 +500,10 @@ def sweep_times(measured: np.ndarray, times: np.ndarray, points: np.ndarray, bin
 # ---- the odometry --------------------------------------------------------------------------
 
 
+class IcpNotConverged(OdometryFailure):
+    """The class-aware ICP ended at its iteration limit (``guard.fail_on_max_iterations``)."""
+
+
 class ClassAwareOdometry(GuardedOdometry):
     """Frame-to-map odometry on a voxel map keyed by class group, with the guards, deskewing
     and health of :class:`~prc_slam.odometry.kiss.KissOdometry`.
@@ -540,6 +537,9 @@ class ClassAwareOdometry(GuardedOdometry):
         #: the prc registration, kept in step, for the sweeps whose anchors do not hold the pose
         self.fallback = KissOdometry(self.config) if self.classes.fallback else None
         self.classaware_frames: list[int] = []  # frames registered class-aware (all of them without fallback)
+        #: frames whose class-aware ICP ended at its iteration limit (registered as the prc variant does, or
+        #: deskewed once when it was deskewing again)
+        self.unconverged_frames: list[int] = []
         #: per frame with ``sweep_motion``, the correction of its deskewing motion (twist per frame interval)
         self.sweep_corrections: list[np.ndarray] = []
         #: per frame, the anchors' conditioning (smallest over largest information of x, y, yaw; None: not judged)
@@ -630,16 +630,24 @@ class ClassAwareOdometry(GuardedOdometry):
             self.iterations.append(0)
             self.anchor_ratio.append(None)
             return self._coast(len(source), initial, sigma, dropped)
+        first = None
         if self._anchored(source, source_group, initial, sigma):
-            new_pose, counts, iters = self._icp(source, source_group, initial, sigma, dt)
+            first = self._icp_or_none(source, source_group, initial, sigma, dt)
+        if first is not None:
+            new_pose, counts, iters = first
             deskewed_with = (self.last_delta, self.clock.deskew_interval())  # the motion the frame is deskewed with
             if self._redeskew_due(labels is not None, times, initial, new_pose, source, source_group, self.map, sigma):
+                kept = (pts, downs, source, source_group, deskewed_with)
                 for _ in range(self.config.redeskew):
                     motion = np.linalg.inv(self.last_pose) @ new_pose
-                    deskewed_with = (motion, self.clock.last_interval())
                     pts, stamps = self._deskew(measured, times, t_ref, motion, self.clock.last_interval())
                     downs, source, source_group = self._group_sources(pts, stamps, chosen, group, motion)
-                    new_pose, counts, iters = self._icp(source, source_group, new_pose, sigma, dt)
+                    again = self._icp_or_none(source, source_group, new_pose, sigma, dt)
+                    if again is None:  # not converged: the frame as registered the first time
+                        pts, downs, source, source_group, deskewed_with = kept
+                        break
+                    new_pose, counts, iters = again
+                    deskewed_with = (motion, self.clock.last_interval())
                 self.redeskewed.append(len(self.poses))
             if self.classes.sweep_motion and self._deskews(times):
                 delta, interval = deskewed_with
@@ -744,8 +752,23 @@ class ClassAwareOdometry(GuardedOdometry):
             )  # fmt: skip
         check_pose(new_pose, self.last_pose, dt, self.config.guard, "class-aware ICP")
         if self.config.guard.fail_on_max_iterations and iters >= self.config.max_num_iterations:
-            raise OdometryFailure(f"class-aware ICP did not converge in {iters} iterations")
+            raise IcpNotConverged(f"class-aware ICP did not converge in {iters} iterations")
         return new_pose, counts, int(iters)
+
+    def _icp_or_none(
+        self, source: np.ndarray, source_group: np.ndarray, guess: np.ndarray, sigma: float, dt: float
+    ) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """:meth:`_icp`, or None when it ends at its iteration limit and the prc registration is
+        there to fall back on (the frame joins ``unconverged_frames``): a Gauss-Newton cycling
+        between correspondences (a point between two stems' lines, a line and a point-to-point
+        fallback) then costs the sweep its class-aware registration, not the variant its run."""
+        try:
+            return self._icp(source, source_group, guess, sigma, dt)
+        except IcpNotConverged:
+            if self.fallback is None:
+                raise
+            self.unconverged_frames.append(len(self.poses))
+            return None
 
     def _deskews(self, times: np.ndarray | None) -> bool:
         """Whether the frame is deskewed by the adapter (per-point times, ``deskew``, the reference convention)."""

@@ -408,3 +408,28 @@ def test_sweep_registration_recovers_the_velocity_the_deskewing_missed():
     assert abs(v[0] - 0.1) < 0.01 and abs(np.degrees(v[5]) - 2.0) < 0.2
     T0, *_ = icp(measured, group, weights, *gmap.index(), 1.0, np.eye(4), 0.6, 0.2, 100, 1e-7, kinds, 0.5)
     assert np.abs(T0[:2, 3]).max() > 0.02  # the distorted sweep registered as one rigid cloud
+
+
+def test_sweep_whose_class_aware_icp_does_not_converge_is_registered_as_the_prc_variant_does():
+    """A class-aware ICP at its iteration limit (here 1) costs the sweep its class-aware registration, not the
+    run: the sweep is registered by KISS-ICP on the same points, kept in step; without the fallback it fails."""
+    from prc_slam.odometry.classaware import IcpNotConverged
+
+    rng = np.random.default_rng(5)
+    pts, codes = _room(rng)
+    keep = codes != L.TRUNK
+    trunks = _stems(rng, [(5, 3), (-4, -6), (8, -9), (-7, 7)], 600)
+    pts = np.concatenate([pts[keep], trunks])
+    codes = np.concatenate([codes[keep], np.full(len(trunks), L.TRUNK, np.uint8)])
+    config = OdometryConfig(deskew=False, max_num_iterations=1)
+    odo, prc = ClassAwareOdometry(config), KissOdometry(config)
+    for i, frame in enumerate(_moves(pts, 3)):
+        a = odo.register(frame, None, codes, frame_time=0.1 * i)
+        b = prc.register(frame, None, codes, frame_time=0.1 * i)
+        np.testing.assert_allclose(a, b, atol=1e-6)
+    anchored = [i for i in (1, 2) if odo.anchor_ratio[i] >= odo.config.degeneracy.ratio]
+    assert anchored and odo.classaware_frames == [] and odo.unconverged_frames == anchored
+    alone = ClassAwareOdometry(config, ClassAwareConfig(fallback=False))
+    alone.register(pts, None, codes, frame_time=0.0)
+    with pytest.raises(IcpNotConverged, match="did not converge"):
+        alone.register(_moves(pts, 2)[1], None, codes, frame_time=0.1)
