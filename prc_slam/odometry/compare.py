@@ -204,6 +204,8 @@ class CompareResult:
                 }
                 # sweeps matched class-aware; the others fell back to the prc registration (too few anchors)
                 m["classaware_frames"] = [i for i in run.odometry.classaware_frames if i < n]
+                # of those anchored, the sweeps whose class-aware ICP ended at its iteration limit
+                m["unconverged_frames"] = [i for i in run.odometry.unconverged_frames if i < n]
             if self.gt_poses is not None and n:
                 est = self.estimate_in_world(name)
                 gt = self.gt_poses[:n]

@@ -265,3 +265,171 @@ def test_anchored_sweeps_get_the_ground_refinement(ground):
         assert odo.ground is None and odo.ground_refined == []
     assert np.linalg.norm(poses[-1][:3, 3] - [1.2, 0.0, 0.0]) < 0.02
     assert abs(poses[-1][2, 3]) < 0.005
+
+
+def _stems(rng: np.random.Generator, centres, n: int = 400) -> np.ndarray:
+    """Points on the faces of upright stems of radius 0.2 m (a half circle each, facing -x), 4 m tall."""
+    out = []
+    for cx, cy in centres:
+        a, z = rng.uniform(0.5 * np.pi, 1.5 * np.pi, n), rng.uniform(-1.0, 3.0, n)
+        out.append(np.column_stack([cx + 0.2 * np.cos(a), cy + 0.2 * np.sin(a), z]))
+    return np.concatenate(out)
+
+
+def _trunk_map(pts: np.ndarray) -> GroupVoxelMap:
+    gmap = GroupVoxelMap(1.0, 100.0, 20)
+    gmap.update(pts, np.full(len(pts), TRUNK, np.int64), np.eye(4))
+    return gmap
+
+
+def test_point_to_line_gradient_and_information_match_finite_differences():
+    """For one correspondence to a stem, b = J^T P r and H = J^T P J (point to line, ``P = I - d d^T``)
+    are the gradient and Gauss-Newton matrix of ``|P r|^2 / 2`` under ``T <- exp(dx) T``."""
+    from prc_slam.odometry.classaware import _exp_se3, _linearise, _projector
+
+    gmap = _trunk_map(_stems(np.random.default_rng(7), [(5.0, 1.0)]))
+    src = np.array([[4.9, 1.1, 0.4]])
+    c, s = np.cos(0.03), np.sin(0.03)
+    T = np.array([[c, -s, 0, 0.05], [s, c, 0, -0.04], [0, 0, 1, 0.3], [0, 0, 0, 1.0]])
+    kinds = np.array([1, 0, 0, 0, 0], np.int64)
+    weights = np.ones(len(GROUP_NAMES))
+    kernel = 1e9  # the Geman-McClure weight is 1 to within 1e-9
+    H, b, counts, _ = _linearise(
+        src, np.array([TRUNK]), weights, kinds, 0.5, *gmap.index(), 1.0, 4.0, kernel, T, 1, np.full(1, -1),
+        np.empty((1, 3, 3)),
+    )  # fmt: skip
+    assert counts[0, TRUNK] == 1
+    p = T[:3, :3] @ src[0] + T[:3, 3]
+    idx = gmap.index()
+    from prc_slam.odometry.guard import nearest_map_point
+
+    q = nearest_map_point(p, TRUNK, *idx, 1.0, 4.0)[0]
+    P = np.eye(3)
+    _projector(P, 1, idx[4][q], TRUNK, *idx, 1.0, 0.5)
+    d = np.linalg.eigh(np.eye(3) - P)[1][:, -1]
+    assert abs(d[2]) > 0.99  # the stem's direction is upright
+
+    def res(dx):
+        pp = (_exp_se3(dx) @ T)[:3, :3] @ src[0] + (_exp_se3(dx) @ T)[:3, 3]
+        return P @ (pp - idx[4][q])
+
+    eps = 1e-6
+    Jn = np.column_stack([(res(e) - res(-e)) / (2 * eps) for e in np.eye(6) * eps])
+    Hs = np.triu(H[0]) + np.triu(H[0], 1).T
+    np.testing.assert_allclose(b[0], Jn.T @ res(np.zeros(6)), atol=1e-6)
+    np.testing.assert_allclose(Hs, Jn.T @ Jn, atol=1e-5)
+    along = np.concatenate([0.1 * d, np.zeros(3)])  # a shift along the stem changes nothing
+    np.testing.assert_allclose(res(along), res(np.zeros(6)), atol=1e-9)
+    assert np.linalg.norm(res(np.array([0.1, 0, 0, 0, 0, 0])) - res(np.zeros(6))) > 0.09  # across it, all
+
+
+@pytest.mark.parametrize("kind", ["line", "point"])
+def test_stems_to_their_lines_fix_x_y_and_yaw_not_the_height(kind):
+    """Upright stems matched point to line constrain the motion across them (x, y and, from stems apart, yaw)
+    and hardly the motion along them (only through the sampling's tilt of each voxel's line); point to point
+    claims the height as firmly as x and y, and a sparser sweep of the same stems moves it (the nearest map
+    point's offset along a stem is sampling, not motion)."""
+    from prc_slam.odometry.classaware import _linearise
+
+    rng = np.random.default_rng(8)
+    centres = [(5.0, 1.0), (-4.0, 6.0), (3.0, -7.0), (-6.0, -5.0)]
+    gmap = _trunk_map(_stems(rng, centres))
+    frame = _stems(rng, centres, 150)  # a sparser sweep of the same stems from the origin
+    group = np.full(len(frame), TRUNK, np.int64)
+    c, s = np.cos(np.radians(0.5)), np.sin(np.radians(0.5))
+    guess = np.array([[c, -s, 0, 0.08], [s, c, 0, -0.06], [0, 0, 1, 0.0], [0, 0, 0, 1.0]])
+    kinds = ClassAwareConfig(residuals={"trunk": kind}).kind_array()
+    weights = np.ones(len(GROUP_NAMES))
+    T, counts, _, _ = icp(frame, group, weights, *gmap.index(), 1.0, guess, 0.6, 0.2, 100, 1e-6, kinds, 0.5)
+    assert counts[TRUNK] > 0.9 * len(frame)
+    assert np.abs(T[:2, 3]).max() < 0.01
+    assert (abs(T[2, 3]) < 0.01) == (kind == "line")  # point to point: the height slides with the sampling
+    assert abs(np.degrees(np.arctan2(T[1, 0], T[0, 0]))) < 0.05
+    cache = np.full(len(frame), -1), np.empty((len(frame), 3, 3))
+    H = _linearise(frame, group, weights, kinds, 0.5, *gmap.index(), 1.0, 0.36, 0.2, T, 1, *cache)[0][0]
+    assert (H[2, 2] < 0.1 * min(H[0, 0], H[1, 1])) == (kind == "line")
+    with pytest.raises(ValueError, match="unknown class groups"):
+        ClassAwareConfig(residuals={"stem": "line"}).kind_array()
+
+
+def test_sweep_velocity_gradient_matches_finite_differences():
+    """The velocity columns of :func:`_linearise_sweep`: a change ``dv`` of the sweep's velocity moves a point
+    deskewed to the reference instant by ``exp(s dv)`` (``s`` its time in frame intervals) before the pose."""
+    from prc_slam.odometry.classaware import _exp_se3, _linearise_sweep, _projector
+    from prc_slam.odometry.guard import nearest_map_point
+    from prc_slam.odometry.kiss import deskew_points
+
+    gmap = _trunk_map(_stems(np.random.default_rng(9), [(5.0, 1.0)]))
+    idx = gmap.index()
+    src, s = np.array([[4.9, 1.1, 0.4]]), np.array([0.37])
+    c, sn = np.cos(0.03), np.sin(0.03)
+    T = np.array([[c, -sn, 0, 0.05], [sn, c, 0, -0.04], [0, 0, 1, 0.3], [0, 0, 0, 1.0]])
+    kinds = np.array([1, 0, 0, 0, 0], np.int64)
+    H, b, counts, _ = _linearise_sweep(src, s, np.array([TRUNK]), np.ones(len(GROUP_NAMES)), kinds, 0.5, *idx, 1.0,
+                                       4.0, 1e9, T, np.full(1, -1), np.empty((1, 3, 3)))  # fmt: skip
+    assert counts[TRUNK] == 1
+    p = T[:3, :3] @ src[0] + T[:3, 3]
+    q = nearest_map_point(p, TRUNK, *idx, 1.0, 4.0)[0]
+    P = np.eye(3)
+    _projector(P, 1, idx[4][q], TRUNK, *idx, 1.0, 0.5)
+
+    def res(d):
+        moved = deskew_points(src, s, 0.0, 1.0, _exp_se3(d[6:]))[0]  # exp(s dv) p
+        Tn = _exp_se3(d[:6]) @ T
+        return P @ (Tn[:3, :3] @ moved + Tn[:3, 3] - idx[4][q])
+
+    eps = 1e-6
+    Jn = np.column_stack([(res(e) - res(-e)) / (2 * eps) for e in np.eye(12) * eps])
+    np.testing.assert_allclose(b, Jn.T @ res(np.zeros(12)), atol=1e-6)
+    np.testing.assert_allclose(H, Jn.T @ Jn, atol=1e-5)
+
+
+def test_sweep_registration_recovers_the_velocity_the_deskewing_missed():
+    """Stems seen by a sensor turning 2 deg and moving 0.1 m a frame interval within its sweep, not deskewed:
+    the constant-pose registration of the distorted sweep is off, the sweep registration finds the motion."""
+    from prc_slam.odometry.classaware import icp_sweep
+    from prc_slam.odometry.kiss import deskew_points, se3_exp
+
+    rng = np.random.default_rng(10)
+    az = np.radians(np.arange(0, 360, 40) + 10.0)
+    centres = [(8 * np.cos(a), 8 * np.sin(a)) for a in az]
+    gmap = _trunk_map(_stems(rng, centres))
+    ref = _stems(rng, centres, 150)  # the sweep at the reference instant
+    s = np.arctan2(ref[:, 1], ref[:, 0]) / (2 * np.pi)  # a counter-clockwise turn from -180 deg: s in [-0.5, 0.5]
+    xi = np.array([0.1, 0.0, 0.0, 0.0, 0.0, np.radians(2.0)])
+    measured = deskew_points(ref, s, 0.0, 1.0, se3_exp(-xi))  # each point where the moving sensor saw it
+    group = np.full(len(ref), TRUNK, np.int64)
+    kinds = ClassAwareConfig().kind_array()
+    weights = np.ones(len(GROUP_NAMES))
+    T, v, counts, _ = icp_sweep(measured, s, group, weights, kinds, 0.5, *gmap.index(), 1.0, np.eye(4), 0.6, 0.2, 100,
+                                1e-7, 0.0)  # fmt: skip
+    assert counts[TRUNK] > 0.9 * len(ref)
+    assert np.abs(T[:2, 3]).max() < 0.01 and abs(np.degrees(np.arctan2(T[1, 0], T[0, 0]))) < 0.02
+    assert abs(v[0] - 0.1) < 0.01 and abs(np.degrees(v[5]) - 2.0) < 0.2
+    T0, *_ = icp(measured, group, weights, *gmap.index(), 1.0, np.eye(4), 0.6, 0.2, 100, 1e-7, kinds, 0.5)
+    assert np.abs(T0[:2, 3]).max() > 0.02  # the distorted sweep registered as one rigid cloud
+
+
+def test_sweep_whose_class_aware_icp_does_not_converge_is_registered_as_the_prc_variant_does():
+    """A class-aware ICP at its iteration limit (here 1) costs the sweep its class-aware registration, not the
+    run: the sweep is registered by KISS-ICP on the same points, kept in step; without the fallback it fails."""
+    from prc_slam.odometry.classaware import IcpNotConverged
+
+    rng = np.random.default_rng(5)
+    pts, codes = _room(rng)
+    keep = codes != L.TRUNK
+    trunks = _stems(rng, [(5, 3), (-4, -6), (8, -9), (-7, 7)], 600)
+    pts = np.concatenate([pts[keep], trunks])
+    codes = np.concatenate([codes[keep], np.full(len(trunks), L.TRUNK, np.uint8)])
+    config = OdometryConfig(deskew=False, max_num_iterations=1)
+    odo, prc = ClassAwareOdometry(config), KissOdometry(config)
+    for i, frame in enumerate(_moves(pts, 3)):
+        a = odo.register(frame, None, codes, frame_time=0.1 * i)
+        b = prc.register(frame, None, codes, frame_time=0.1 * i)
+        np.testing.assert_allclose(a, b, atol=1e-6)
+    anchored = [i for i in (1, 2) if odo.anchor_ratio[i] >= odo.config.degeneracy.ratio]
+    assert anchored and odo.classaware_frames == [] and odo.unconverged_frames == anchored
+    alone = ClassAwareOdometry(config, ClassAwareConfig(fallback=False))
+    alone.register(pts, None, codes, frame_time=0.0)
+    with pytest.raises(IcpNotConverged, match="did not converge"):
+        alone.register(_moves(pts, 2)[1], None, codes, frame_time=0.1)
