@@ -202,6 +202,43 @@ def _projector(P, kind, m, g, table, coords, first, count, mpts, inv_voxel, min_
                 P[a, e] = nrm[a] * nrm[e]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _residual(i, src, g, R, t, p, r, Pr, kinds, min_shape, table, coords, first, count, mpts, inv_voxel, max_d2,
+              matched, projectors):  # fmt: skip
+    """Source point ``i`` of group ``g`` at the pose ``(R, t)``: ``p`` (world), the residual ``r``
+    to its nearest map point and ``Pr = P r`` with the point's projector (computed again only when
+    it matches another map point: ``matched``, ``projectors`` as :func:`_linearise`'s). Returns the
+    map point (-1: none within ``sqrt(max_d2)``) and ``|P r|^2 = r^T P r``."""
+    for k in range(3):
+        p[k] = R[k, 0] * src[i, 0] + R[k, 1] * src[i, 1] + R[k, 2] * src[i, 2] + t[k]
+    q = nearest_map_point(p, g, table, coords, first, count, mpts, inv_voxel, max_d2)[0]
+    if q < 0:
+        return q, 0.0
+    r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
+    P = projectors[i]
+    if matched[i] != q:
+        _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
+        matched[i] = q
+    for k in range(3):
+        Pr[k] = P[k, 0] * r[0] + P[k, 1] * r[1] + P[k, 2] * r[2]
+    return q, Pr[0] * r[0] + Pr[1] * r[1] + Pr[2] * r[2]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _accumulate(H, b, w, J, P, Pr, PJ):
+    """One correspondence into the normal equations: ``H += w J^T P J`` (upper triangle) and
+    ``b += w J^T P r`` (``Pr = P r``), ``J`` of shape ``(3, m)``; ``PJ`` a ``(3, m)`` buffer."""
+    m = J.shape[1]
+    for k in range(3):
+        for a in range(m):
+            PJ[k, a] = P[k, 0] * J[0, a] + P[k, 1] * J[1, a] + P[k, 2] * J[2, a]
+    for a in range(m):
+        ja0, ja1, ja2 = J[0, a], J[1, a], J[2, a]
+        b[a] += w * (ja0 * Pr[0] + ja1 * Pr[1] + ja2 * Pr[2])
+        for e in range(a, m):
+            H[a, e] += w * (ja0 * PJ[0, e] + ja1 * PJ[1, e] + ja2 * PJ[2, e])
+
+
 @njit(cache=True, nogil=True)
 def _linearise(
     src, src_group, weights, kinds, min_shape, table, coords, first, count, mpts, inv_voxel, max_d2, kernel, T,
@@ -234,38 +271,23 @@ def _linearise(
         J = np.zeros((3, 6))
         PJ = np.zeros((3, 6))
         J[0, 0] = J[1, 1] = J[2, 2] = 1.0
+        Hc, bc = H[c], b[c]
         for i in range(c * step, min(n, (c + 1) * step)):
             g = src_group[i]
             if weights[g] <= 0:
                 continue
-            for k in range(3):
-                p[k] = R[k, 0] * src[i, 0] + R[k, 1] * src[i, 1] + R[k, 2] * src[i, 2] + t[k]
-            q = nearest_map_point(p, g, table, coords, first, count, mpts, inv_voxel, max_d2)[0]
+            q, rr = _residual(i, src, g, R, t, p, r, Pr, kinds, min_shape, table, coords, first, count, mpts,
+                              inv_voxel, max_d2, matched, projectors)  # fmt: skip
             if q < 0:
                 continue
             counts[c, g] += 1
             partner[i] = g
-            r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
-            P = projectors[i]
-            if matched[i] != q:
-                _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
-                matched[i] = q
-            for k in range(3):
-                Pr[k] = P[k, 0] * r[0] + P[k, 1] * r[1] + P[k, 2] * r[2]
-            rr = Pr[0] * r[0] + Pr[1] * r[1] + Pr[2] * r[2]  # |P r|^2 = r^T P r
             w = weights[g] * kernel * kernel / ((kernel + rr) * (kernel + rr))
             # J = [I, -[p]x]; only its rotational block changes from point to point
             J[0, 4], J[0, 5] = p[2], -p[1]
             J[1, 3], J[1, 5] = -p[2], p[0]
             J[2, 3], J[2, 4] = p[1], -p[0]
-            for k in range(3):
-                for a in range(6):
-                    PJ[k, a] = P[k, 0] * J[0, a] + P[k, 1] * J[1, a] + P[k, 2] * J[2, a]
-            for a in range(6):
-                ja0, ja1, ja2 = J[0, a], J[1, a], J[2, a]
-                b[c, a] += w * (ja0 * Pr[0] + ja1 * Pr[1] + ja2 * Pr[2])
-                for e in range(a, 6):
-                    H[c, a, e] += w * (ja0 * PJ[0, e] + ja1 * PJ[1, e] + ja2 * PJ[2, e])
+            _accumulate(Hc, bc, w, J, projectors[i], Pr, PJ)
     return H, b, counts, partner
 
 
@@ -387,20 +409,11 @@ def _linearise_sweep(src, s, src_group, weights, kinds, min_shape, table, coords
         g = src_group[i]
         if weights[g] <= 0:
             continue
-        for k in range(3):
-            p[k] = R[k, 0] * src[i, 0] + R[k, 1] * src[i, 1] + R[k, 2] * src[i, 2] + t[k]
-        q = nearest_map_point(p, g, table, coords, first, count, mpts, inv_voxel, max_d2)[0]
+        q, rr = _residual(i, src, g, R, t, p, r, Pr, kinds, min_shape, table, coords, first, count, mpts,
+                          inv_voxel, max_d2, matched, projectors)  # fmt: skip
         if q < 0:
             continue
         counts[g] += 1
-        r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
-        P = projectors[i]
-        if matched[i] != q:
-            _projector(P, kinds[g], mpts[q], g, table, coords, first, count, mpts, inv_voxel, min_shape)
-            matched[i] = q
-        for k in range(3):
-            Pr[k] = P[k, 0] * r[0] + P[k, 1] * r[1] + P[k, 2] * r[2]
-        rr = Pr[0] * r[0] + Pr[1] * r[1] + Pr[2] * r[2]
         w = weights[g] * kernel * kernel / ((kernel + rr) * (kernel + rr))
         wsum += w
         for k in range(3):
@@ -417,14 +430,7 @@ def _linearise_sweep(src, s, src_group, weights, kinds, min_shape, table, coords
             J[k, 9] = si * (R[k, 1] * -z + R[k, 2] * y)
             J[k, 10] = si * (R[k, 0] * z + R[k, 2] * -x)
             J[k, 11] = si * (R[k, 0] * -y + R[k, 1] * x)
-        for k in range(3):
-            for a in range(12):
-                PJ[k, a] = P[k, 0] * J[0, a] + P[k, 1] * J[1, a] + P[k, 2] * J[2, a]
-        for a in range(12):
-            ja0, ja1, ja2 = J[0, a], J[1, a], J[2, a]
-            b[a] += w * (ja0 * Pr[0] + ja1 * Pr[1] + ja2 * Pr[2])
-            for e in range(a, 12):
-                H[a, e] += w * (ja0 * PJ[0, e] + ja1 * PJ[1, e] + ja2 * PJ[2, e])
+        _accumulate(H, b, w, J, projectors[i], Pr, PJ)
     for a in range(12):
         for e in range(a):
             H[a, e] = H[e, a]
