@@ -40,7 +40,7 @@ from prc_slam import labels as L
 from prc_slam.odometry.degeneracy import _surface, block_ratio, surface_information
 from prc_slam.odometry.ground import GroundModel
 from prc_slam.odometry.group_map import GroupVoxelMap
-from prc_slam.odometry.guard import OdometryFailure, check_pose, is_rigid, nearest_map_point
+from prc_slam.odometry.guard import OdometryFailure, check_pose, is_rigid, nearest_map_point, orthonormal
 from prc_slam.odometry.kiss import (
     MIN_SOURCE_POINTS,
     GuardedOdometry,
@@ -127,7 +127,8 @@ class ClassAwareConfig(BaseModel):
         True,
         description="after the registration (and deskewing again), register the sweep once more with its velocity "
         "among the unknowns (classaware.icp_sweep: continuous time within the sweep, as CT-ICP) and deskew the frame "
-        "with the velocity found; false: the constant-velocity deskewing only",
+        "with the velocity found (one beyond the guard's speed or turn-rate bound is not believed: the frame keeps its "
+        "registration, in sweep_rejected); false: the constant-velocity deskewing only",
     )
     sweep_prior: float = Field(
         0.05,
@@ -548,6 +549,8 @@ class ClassAwareOdometry(GuardedOdometry):
         self.unconverged_frames: list[int] = []
         #: per frame with ``sweep_motion``, the correction of its deskewing motion (twist per frame interval)
         self.sweep_corrections: list[np.ndarray] = []
+        #: frames whose registered sweep velocity broke the guard's bounds (kept as registered before it)
+        self.sweep_rejected: list[int] = []
         #: per frame, the anchors' conditioning (smallest over largest information of x, y, yaw; None: not judged)
         self.anchor_ratio: list[float | None] = []
         #: the ground refinement (``odometry.ground``) of every sweep given labels: one ground model, shared with
@@ -658,12 +661,17 @@ class ClassAwareOdometry(GuardedOdometry):
             if self.classes.sweep_motion and self._deskews(times):
                 delta, interval = deskewed_with
                 s = (sweep_times(measured, times, source) - t_ref) / interval
-                new_pose, v, counts, more = self._icp_sweep(source, s, source_group, new_pose, sigma, dt)
+                pose, v, swept, more = self._icp_sweep(source, s, source_group, new_pose, sigma, dt)
                 iters += more
-                delta = se3_exp(se3_log(delta) + v)
-                pts = deskew_points(measured, times, t_ref, interval, delta)
-                downs, source, source_group = self._group_sources(pts, np.zeros(0), chosen, group, delta)
-                self.sweep_corrections.append(v)
+                velocity = se3_log(delta) + v
+                if self._believable(velocity, interval):
+                    delta = se3_exp(velocity)
+                    pts = deskew_points(measured, times, t_ref, interval, delta)
+                    downs, source, source_group = self._group_sources(pts, np.zeros(0), chosen, group, delta)
+                    new_pose, counts = pose, swept
+                    self.sweep_corrections.append(v)
+                else:  # the frame as registered and deskewed before
+                    self.sweep_rejected.append(len(self.poses))
             ground = None
             if self.ground is not None and labels is not None:
                 ground = self._ground_points(pts, codes)
@@ -781,6 +789,17 @@ class ClassAwareOdometry(GuardedOdometry):
         c = self.config
         return c.deskew and c.deskew_convention == "reference" and times is not None and len(times) > 0
 
+    def _believable(self, velocity: np.ndarray, interval: float) -> bool:
+        """Whether a sweep's velocity (:func:`icp_sweep`'s twist per frame interval ``interval``) is
+        finite and within the guard's bounds (``max_speed``, ``max_angular_rate``): a motion no
+        platform makes is an ill-constrained registration, not a measurement."""
+        guard = self.config.guard
+        return bool(
+            np.isfinite(velocity).all()
+            and np.linalg.norm(velocity[:3]) <= guard.max_speed * interval
+            and np.linalg.norm(velocity[3:]) <= guard.max_angular_rate * interval
+        )
+
     def _icp_sweep(
         self, source: np.ndarray, s: np.ndarray, source_group: np.ndarray, guess: np.ndarray, sigma: float, dt: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -815,7 +834,7 @@ class ClassAwareOdometry(GuardedOdometry):
             pose, _, refined = self.ground.refine(ground, pose, sigma)
             if refined:
                 self.ground_refined.append(len(self.poses))
-        pose = self._condition(source, source_group, self.map, sigma, pose, initial)
+        pose = orthonormal(self._condition(source, source_group, self.map, sigma, pose, initial))
         self.classaware_frames.append(len(self.poses))
         return pose
 

@@ -104,6 +104,27 @@ def is_rigid(T: np.ndarray, tol: float = 1e-3) -> bool:
     )
 
 
+#: a pose whose rotation is further than this from orthonormal (largest entry of ``R R^T - I``) is
+#: projected back onto SO(3) (:func:`orthonormal`): every product of poses adds ~1e-16, and KISS-ICP's
+#: Sophus aborts the whole process (``SOPHUS_ENSURE``, "R is not orthogonal") near 1e-10; a windy
+#: forest walk with a weak sweep prior got there within 150 frames
+ORTHONORMAL_TOL = 1e-13
+
+
+def orthonormal(T: np.ndarray) -> np.ndarray:
+    """``T`` (4x4, finite) with its rotation replaced by the nearest rotation (SVD: ``U V^T``,
+    det +1) once it has drifted beyond :data:`ORTHONORMAL_TOL` from orthonormal; else ``T`` itself."""
+    R = T[:3, :3]
+    if np.abs(R @ R.T - np.eye(3)).max() <= ORTHONORMAL_TOL:
+        return T
+    U, _, Vt = np.linalg.svd(R)
+    if np.linalg.det(U @ Vt) < 0:
+        U[:, -1] = -U[:, -1]
+    out = np.array(T, dtype=np.float64)
+    out[:3, :3] = U @ Vt
+    return out
+
+
 def rotation_angle(R: np.ndarray) -> float:
     """Angle (rad) of a rotation matrix."""
     return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))

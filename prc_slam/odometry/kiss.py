@@ -53,6 +53,7 @@ from prc_slam.odometry.guard import (
     check_pose,
     finite_points,
     is_rigid,
+    orthonormal,
     residuals,
 )
 
@@ -601,7 +602,7 @@ class KissOdometry(GuardedOdometry):
             if refined:
                 self.ground_refined.append(len(self.poses))
         groups = np.zeros(len(source), np.int64)
-        new_pose = self._condition(source, groups, self._shadow, sigma, new_pose, initial_guess)
+        new_pose = orthonormal(self._condition(source, groups, self._shadow, sigma, new_pose, initial_guess))
         self._health(source, groups, new_pose, sigma, dropped, -1, self._shadow)
         kiss.adaptive_threshold.update_model_deviation(np.linalg.inv(initial_guess) @ new_pose)
         kiss.local_map.update(frame_downsample, new_pose)

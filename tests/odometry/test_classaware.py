@@ -433,3 +433,36 @@ def test_sweep_whose_class_aware_icp_does_not_converge_is_registered_as_the_prc_
     alone.register(pts, None, codes, frame_time=0.0)
     with pytest.raises(IcpNotConverged, match="did not converge"):
         alone.register(_moves(pts, 2)[1], None, codes, frame_time=0.1)
+
+
+def test_sweep_velocity_beyond_the_guard_is_not_believed(monkeypatch):
+    """A sweep registration that returns a velocity no platform has (100 rad per frame interval) is not believed:
+    the frame keeps its registration from before the sweep step, exactly as without ``sweep_motion``, and is
+    listed in ``sweep_rejected``; a believable one is used (``sweep_corrections``)."""
+    import prc_slam.odometry.classaware as ca
+
+    pts, codes = _room(np.random.default_rng(6))
+    frames = _moves(pts, 3)
+
+    def run(sweep_motion: bool) -> tuple[ClassAwareOdometry, list[np.ndarray]]:
+        odo = ClassAwareOdometry(OdometryConfig(), ClassAwareConfig(sweep_motion=sweep_motion))
+        poses = []
+        for i, frame in enumerate(frames):
+            times = 0.1 * i + 0.1 * np.arctan2(frame[:, 1], frame[:, 0]) / (2 * np.pi)  # a sweep around 0.1 i s
+            poses.append(odo.register(frame, times, codes, frame_time=0.1 * i))
+        return odo, poses
+
+    used, _ = run(True)
+    assert len(used.classaware_frames) == 2 and len(used.sweep_corrections) == 2 and used.sweep_rejected == []
+    _, expected = run(False)
+    sweep = ca.icp_sweep
+
+    def wild(*args):
+        T, v, counts, iters = sweep(*args)
+        return T, v + np.array([0, 0, 0, 0, 0, 100.0]), counts, iters
+
+    monkeypatch.setattr(ca, "icp_sweep", wild)
+    odo, poses = run(True)
+    assert odo.sweep_rejected == [1, 2] and odo.sweep_corrections == []
+    for a, b in zip(poses, expected, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -284,3 +284,69 @@ def test_point_times_on_another_clock_are_named():
     ok = KissOdometry(OdometryConfig())
     ok.register(pts, np.linspace(0.0, 0.1, len(pts)), frame_time=0.05)  # one clock: registered
     assert len(ok.poses) == 1
+
+
+def test_a_drifted_rotation_is_made_orthonormal_again():
+    """:func:`orthonormal` projects a rotation that drifted beyond ``ORTHONORMAL_TOL`` back onto SO(3) (nearest
+    rotation, translation kept) and leaves one within it alone."""
+    from scipy.spatial.transform import Rotation
+
+    from prc_slam.odometry.guard import ORTHONORMAL_TOL, orthonormal
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.3, -0.2, 1.1]).as_matrix()
+    T[:3, 3] = [4.0, -2.0, 0.5]
+    assert orthonormal(T) is T
+    drifted = T.copy()
+    drifted[:3, :3] += 1e-9 * np.random.default_rng(0).normal(size=(3, 3))
+    assert np.abs(drifted[:3, :3] @ drifted[:3, :3].T - np.eye(3)).max() > ORTHONORMAL_TOL
+    out = orthonormal(drifted)
+    R = out[:3, :3]
+    assert np.abs(R @ R.T - np.eye(3)).max() < 1e-15 and np.linalg.det(R) > 0
+    np.testing.assert_allclose(out, T, atol=1e-8)
+    np.testing.assert_array_equal(out[:3, 3], T[:3, 3])
+
+
+_DRIFTING = """
+import sys
+import numpy as np
+from prc_slam import labels as L
+from prc_slam.odometry.classaware import ClassAwareOdometry
+from prc_slam.odometry.kiss import GuardedOdometry, KissOdometry, OdometryConfig
+
+condition = GuardedOdometry._condition
+
+def drifting(self, *args):  # the pose after the degeneracy step, its rotation drifted by 1e-9
+    pose = condition(self, *args).copy()
+    pose[:3, :3] *= 1 + 1e-9
+    return pose
+
+GuardedOdometry._condition = drifting
+rng = np.random.default_rng(2)
+pts = np.concatenate([
+    rng.uniform([-20, -20, -1.7], [20, 20, -1.7], (4000, 3)),
+    np.column_stack([rng.uniform(-20, 20, 2000), np.full(2000, 15.0), rng.uniform(-1.7, 4, 2000)]),
+    np.column_stack([np.full(2000, -12.0), rng.uniform(-20, 20, 2000), rng.uniform(-1.7, 4, 2000)]),
+])
+codes = np.full(len(pts), L.BUILDING, np.uint8)
+odo = (KissOdometry if sys.argv[1] == "prc" else ClassAwareOdometry)(OdometryConfig(deskew=False))
+for i in range(4):
+    pose = odo.register(pts - [0.3 * i, 0, 0], None, codes, frame_time=0.1 * i)
+    R = pose[:3, :3]
+    print(np.abs(R @ R.T - np.eye(3)).max(), pose[0, 3] - 0.3 * i)
+"""
+
+
+@pytest.mark.parametrize("variant", ["prc", "classaware"])
+def test_poses_stay_orthonormal_when_the_registration_drifts(variant):
+    """Products of poses drift from orthonormal by ~1e-16 each, and KISS-ICP's Sophus aborts the process near
+    1e-10: a registration whose pose drifted by 1e-9 is stored, and the next frame registered from it, with an
+    orthonormal rotation (in a child process: without the projection it aborts)."""
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-c", _DRIFTING, variant], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    rows = np.array([line.split() for line in run.stdout.strip().splitlines()], float)
+    assert len(rows) == 4
+    assert (rows[:, 0] <= 1e-13).all() and (np.abs(rows[:, 1]) < 0.02).all()
