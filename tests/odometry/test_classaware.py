@@ -448,7 +448,7 @@ def test_sweep_velocity_beyond_the_guard_is_not_believed(monkeypatch):
         odo = ClassAwareOdometry(OdometryConfig(), ClassAwareConfig(sweep_motion=sweep_motion))
         poses = []
         for i, frame in enumerate(frames):
-            times = 0.1 * i + 0.1 * np.arctan2(frame[:, 1], frame[:, 0]) / (2 * np.pi)  # a sweep around 0.1 i s
+            times = 0.1 * i + 0.1 * np.arctan2(frame[:, 1], frame[:, 0]) / (2 * np.pi)  # one sweep, centred on 0.1 i s
             poses.append(odo.register(frame, times, codes, frame_time=0.1 * i))
         return odo, poses
 
