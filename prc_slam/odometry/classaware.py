@@ -204,17 +204,21 @@ def _projector(P, kind, m, g, table, coords, first, count, mpts, inv_voxel, min_
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _residual(i, src, g, R, t, p, r, Pr, kinds, min_shape, table, coords, first, count, mpts, inv_voxel, max_d2,
-              matched, projectors):  # fmt: skip
-    """Source point ``i`` of group ``g`` at the pose ``(R, t)``: ``p`` (world), the residual ``r``
-    to its nearest map point and ``Pr = P r`` with the point's projector (computed again only when
-    it matches another map point: ``matched``, ``projectors`` as :func:`_linearise`'s). Returns the
-    map point (-1: none within ``sqrt(max_d2)``) and ``|P r|^2 = r^T P r``."""
+def _correspondence(i, src, src_group, weights, kernel, R, t, p, r, Pr, kinds, min_shape, table, coords, first, count,
+                    mpts, inv_voxel, max_d2, matched, projectors):  # fmt: skip
+    """Source point ``i`` at the pose ``(R, t)``: ``p`` (world), the residual ``r`` to its nearest
+    map point of its group ``g`` and ``Pr = P r`` with the point's projector (computed again only
+    when it matches another map point: ``matched``, ``projectors`` as :func:`_linearise`'s).
+    Returns the map point (-1: none within ``sqrt(max_d2)``, or the group weighs nothing), ``g``
+    and the correspondence's weight: the group's times the Geman-McClure weight of ``|P r|^2``."""
+    g = src_group[i]
+    if weights[g] <= 0:
+        return -1, g, 0.0
     for k in range(3):
         p[k] = R[k, 0] * src[i, 0] + R[k, 1] * src[i, 1] + R[k, 2] * src[i, 2] + t[k]
     q = nearest_map_point(p, g, table, coords, first, count, mpts, inv_voxel, max_d2)[0]
     if q < 0:
-        return q, 0.0
+        return q, g, 0.0
     r[0], r[1], r[2] = p[0] - mpts[q, 0], p[1] - mpts[q, 1], p[2] - mpts[q, 2]
     P = projectors[i]
     if matched[i] != q:
@@ -222,7 +226,8 @@ def _residual(i, src, g, R, t, p, r, Pr, kinds, min_shape, table, coords, first,
         matched[i] = q
     for k in range(3):
         Pr[k] = P[k, 0] * r[0] + P[k, 1] * r[1] + P[k, 2] * r[2]
-    return q, Pr[0] * r[0] + Pr[1] * r[1] + Pr[2] * r[2]
+    rr = Pr[0] * r[0] + Pr[1] * r[1] + Pr[2] * r[2]
+    return q, g, weights[g] * kernel * kernel / ((kernel + rr) * (kernel + rr))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -274,16 +279,12 @@ def _linearise(
         J[0, 0] = J[1, 1] = J[2, 2] = 1.0
         Hc, bc = H[c], b[c]
         for i in range(c * step, min(n, (c + 1) * step)):
-            g = src_group[i]
-            if weights[g] <= 0:
-                continue
-            q, rr = _residual(i, src, g, R, t, p, r, Pr, kinds, min_shape, table, coords, first, count, mpts,
-                              inv_voxel, max_d2, matched, projectors)  # fmt: skip
+            q, g, w = _correspondence(i, src, src_group, weights, kernel, R, t, p, r, Pr, kinds, min_shape, table,
+                                      coords, first, count, mpts, inv_voxel, max_d2, matched, projectors)  # fmt: skip
             if q < 0:
                 continue
             counts[c, g] += 1
             partner[i] = g
-            w = weights[g] * kernel * kernel / ((kernel + rr) * (kernel + rr))
             # J = [I, -[p]x]; only its rotational block changes from point to point
             J[0, 4], J[0, 5] = p[2], -p[1]
             J[1, 3], J[1, 5] = -p[2], p[0]
@@ -407,15 +408,11 @@ def _linearise_sweep(src, s, src_group, weights, kinds, min_shape, table, coords
     PJ = np.zeros((3, 12))
     wsum = 0.0
     for i in range(src.shape[0]):
-        g = src_group[i]
-        if weights[g] <= 0:
-            continue
-        q, rr = _residual(i, src, g, R, t, p, r, Pr, kinds, min_shape, table, coords, first, count, mpts,
-                          inv_voxel, max_d2, matched, projectors)  # fmt: skip
+        q, g, w = _correspondence(i, src, src_group, weights, kernel, R, t, p, r, Pr, kinds, min_shape, table, coords,
+                                  first, count, mpts, inv_voxel, max_d2, matched, projectors)  # fmt: skip
         if q < 0:
             continue
         counts[g] += 1
-        w = weights[g] * kernel * kernel / ((kernel + rr) * (kernel + rr))
         wsum += w
         for k in range(3):
             for a in range(12):

@@ -206,7 +206,7 @@ class CompareResult:
                 m["classaware_frames"] = [i for i in run.odometry.classaware_frames if i < n]
                 # of those anchored, the sweeps whose class-aware ICP ended at its iteration limit
                 m["unconverged_frames"] = [i for i in run.odometry.unconverged_frames if i < n]
-                # of those, the sweeps whose registered motion within the sweep broke the guard's bounds
+                # of the class-aware sweeps, those whose velocity registered with the pose broke the guard's bounds
                 m["sweep_rejected_frames"] = [i for i in run.odometry.sweep_rejected if i < n]
             if self.gt_poses is not None and n:
                 est = self.estimate_in_world(name)
